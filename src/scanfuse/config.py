@@ -1,0 +1,161 @@
+"""`FusionConfig` and loading it from a ROS 2 parameter file.
+
+The same file (`scanfuse: ros__parameters: {...}`) drives the live node, the bag
+processor and the simulator. Angles are radians, lengths metres (REP-103).
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from scanfuse.errors import ConfigError
+
+NODE_NAME = 'scanfuse'
+
+
+class Method(str, Enum):
+    """How the depth image becomes a scan."""
+
+    ROW = 'row'  # the paper's Algorithm 1 on one row or a band of rows
+    OBSTACLE = 'obstacle'  # every pixel, kept when inside the collision slab
+
+
+class Resampler(str, Enum):
+    """How the row method's scan is brought onto the LiDAR's grid."""
+
+    LINEAR = 'linear'  # the paper's Algorithm 3
+    CONSERVATIVE = 'conservative'  # minimum inside each slot, no interpolation across edges
+
+
+class FusionConfig(BaseModel):
+    """Every setting of the fusion. Defaults fit a RealSense D435 above an RPLIDAR."""
+
+    model_config = ConfigDict(frozen=True, extra='forbid', use_enum_values=False)
+
+    method: Method = Field(Method.OBSTACLE, description='depth-to-scan conversion: row | obstacle')
+    resample: Resampler = Field(
+        Resampler.CONSERVATIVE, description='row method onto the LiDAR grid: linear | conservative'
+    )
+    scan_row: int | None = Field(
+        None, ge=0, description='image row of the row method (default: principal-point row)'
+    )
+    scan_height: int = Field(1, ge=1, description='rows in the band of the row method')
+    d2l_compat: bool = Field(
+        False, description='row method reproduces depthimage_to_laserscan exactly'
+    )
+    floor_guard: bool = Field(
+        True, description='row method: cut each slot where its line of sight meets the floor'
+    )
+    floor_margin: float = Field(
+        0.05, ge=0.0, description='metres kept short of the floor intersection by floor_guard'
+    )
+    range_min: float = Field(0.2, ge=0.0, description='depth camera minimum range, metres')
+    range_max: float = Field(10.0, gt=0.0, description='depth camera maximum range, metres')
+    min_obstacle_height: float = Field(
+        0.03, description='bottom of the collision slab above the floor, metres'
+    )
+    max_obstacle_height: float = Field(
+        0.5, description='top of the collision slab above the floor, metres'
+    )
+    camera_x: float = Field(0.0, description='camera position in the base frame, metres')
+    camera_y: float = Field(0.0, description='camera position in the base frame, metres')
+    camera_height: float = Field(0.45, description='camera height above the floor, metres')
+    camera_roll: float = Field(0.0, description='camera roll, radians')
+    camera_pitch: float = Field(
+        math.radians(20.0), description='camera pitch, radians, positive looks down'
+    )
+    camera_yaw: float = Field(0.0, description='camera yaw, radians, positive looks left')
+    lidar_x: float = Field(0.0, description='LiDAR position in the base frame, metres')
+    lidar_y: float = Field(0.0, description='LiDAR position in the base frame, metres')
+    lidar_height: float = Field(0.30, description='LiDAR height above the floor, metres')
+    lidar_yaw: float = Field(0.0, description='LiDAR yaw in the base frame, radians')
+    use_tf: bool = Field(
+        True, description='take extrinsics from /tf_static and /tf when they are there'
+    )
+    base_frame: str = Field('base_link', description='robot frame whose z = 0 is the floor')
+    max_time_offset: float = Field(
+        0.1, gt=0.0, description='largest LiDAR-to-depth stamp difference paired, seconds'
+    )
+    camera_timeout: float = Field(
+        0.5, gt=0.0, description='camera silence after which the LiDAR passes through, seconds'
+    )
+    publish_depth_scan: bool = Field(True, description='also publish the depth scan on /scan_depth')
+    scan_topic: str = Field('/scan', description='LiDAR LaserScan topic')
+    depth_topic: str = Field('/camera/depth/image_raw', description='depth Image topic')
+    camera_info_topic: str = Field('/camera/depth/camera_info', description='CameraInfo topic')
+    fused_topic: str = Field('/scan_fused', description='fused LaserScan topic')
+    depth_scan_topic: str = Field('/scan_depth', description='depth LaserScan topic')
+
+    @model_validator(mode='after')
+    def _check_limits(self) -> FusionConfig:
+        if self.range_min >= self.range_max:
+            msg = f'range_min ({self.range_min}) must be smaller than range_max ({self.range_max})'
+            raise ValueError(msg)
+        if self.min_obstacle_height >= self.max_obstacle_height:
+            msg = (
+                f'min_obstacle_height ({self.min_obstacle_height}) must be below '
+                f'max_obstacle_height ({self.max_obstacle_height})'
+            )
+            raise ValueError(msg)
+        return self
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> FusionConfig:
+        """Validate plain values; errors name every bad parameter."""
+        try:
+            return cls.model_validate(values)
+        except ValidationError as err:
+            problems = '; '.join(
+                f'{".".join(str(p) for p in e["loc"]) or "config"}: {e["msg"]}'
+                for e in err.errors()
+            )
+            msg = f'invalid scanfuse parameters: {problems}'
+            raise ConfigError(msg) from err
+
+    @classmethod
+    def from_ros_params(cls, path: str | Path, node_name: str = NODE_NAME) -> FusionConfig:
+        """Load `<node_name>: ros__parameters: {...}` (or `/**:`) from a ROS 2 parameter file."""
+        return cls.from_dict(read_ros_params(path, node_name))
+
+    def to_ros_params(self, node_name: str = NODE_NAME) -> dict[str, Any]:
+        """The parameter-file form of this configuration (loadable by ROS 2 and by us)."""
+        values = self.model_dump(mode='json', exclude_none=True)
+        return {node_name: {'ros__parameters': values}}
+
+    def with_changes(self, **changes: Any) -> FusionConfig:
+        """A validated copy with some parameters changed."""
+        return self.from_dict({**self.model_dump(), **changes})
+
+
+def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """The `ros__parameters` of `node_name` in a ROS 2 parameter file."""
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        msg = f'cannot read parameter file {path}: {err.strerror}'
+        raise ConfigError(msg) from err
+    except yaml.YAMLError as err:
+        msg = f'parameter file {path} is not valid YAML: {err}'
+        raise ConfigError(msg) from err
+    if not isinstance(document, dict):
+        msg = f'parameter file {path} must map node names to ros__parameters'
+        raise ConfigError(msg)
+    candidates = (node_name, f'/{node_name}', '/**')
+    for key in candidates:
+        section = document.get(key)
+        if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
+            params: dict[str, Any] = section['ros__parameters']
+            return params
+    found = ', '.join(str(key) for key in document) or 'nothing'
+    msg = (
+        f'parameter file {path} has no "{node_name}: ros__parameters:" section '
+        f'(found: {found}); see examples/scanfuse.yaml'
+    )
+    raise ConfigError(msg)

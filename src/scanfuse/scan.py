@@ -1,0 +1,153 @@
+"""`Scan`, the twin of `sensor_msgs/LaserScan`, and REP-117 helpers.
+
+REP-117 range semantics used throughout scanfuse:
++Inf: no return within range (free space), -Inf: object too close to measure,
+NaN: no valid measurement (no information).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from scanfuse.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    FloatArray = npt.NDArray[np.float32]
+    AngleArray = npt.NDArray[np.float64]
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Scan:
+    """A planar range scan with the fields of `sensor_msgs/LaserScan`.
+
+    `ranges[i]` is measured at `angle_min + i * angle_increment` (radians,
+    counter-clockwise about +z of `frame_id`, REP-103). `angle_increment` may be
+    negative (a LiDAR that sweeps clockwise).
+    """
+
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: FloatArray
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+    intensities: FloatArray | None = None
+    frame_id: str = ''
+    stamp_ns: int = 0
+
+    def __post_init__(self) -> None:
+        ranges = np.asarray(self.ranges)
+        if ranges.ndim != 1:
+            msg = f'Scan.ranges must be one-dimensional, got shape {ranges.shape}'
+            raise InputError(msg)
+        if ranges.dtype != np.float32:
+            ranges = ranges.astype(np.float32)
+        object.__setattr__(self, 'ranges', ranges)
+        if self.intensities is not None:
+            intensities = np.asarray(self.intensities, dtype=np.float32)
+            if intensities.size and intensities.shape != ranges.shape:
+                msg = (
+                    f'Scan.intensities has {intensities.size} values for {ranges.size} ranges; '
+                    'give one intensity per range or none'
+                )
+                raise InputError(msg)
+            object.__setattr__(self, 'intensities', intensities)
+        if not math.isfinite(self.angle_increment) or self.angle_increment == 0.0:
+            msg = f'Scan.angle_increment must be finite and non-zero, got {self.angle_increment}'
+            raise InputError(msg)
+
+    def __len__(self) -> int:
+        return int(self.ranges.size)
+
+    def angles(self) -> AngleArray:
+        """Angle of every reading, radians (float64)."""
+        return self.angle_min + self.angle_increment * np.arange(self.ranges.size, dtype=np.float64)
+
+    @property
+    def grid(self) -> AngleGrid:
+        """The angular grid of this scan."""
+        return AngleGrid(self.angle_min, self.angle_increment, self.ranges.size)
+
+    def with_ranges(self, ranges: FloatArray, **changes: object) -> Scan:
+        """A copy with new ranges (same length) and optionally other fields changed."""
+        return replace(self, ranges=ranges, **changes)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class AngleGrid:
+    """The angular layout of a scan: where reading `i` points."""
+
+    angle_min: float
+    angle_increment: float
+    count: int
+    angles_cache: AngleArray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.count <= 0:
+            msg = f'an angle grid needs at least one reading, got count={self.count}'
+            raise InputError(msg)
+        if not math.isfinite(self.angle_increment) or self.angle_increment == 0.0:
+            msg = f'angle_increment must be finite and non-zero, got {self.angle_increment}'
+            raise InputError(msg)
+        angles = self.angle_min + self.angle_increment * np.arange(self.count, dtype=np.float64)
+        angles.setflags(write=False)
+        object.__setattr__(self, 'angles_cache', angles)
+
+    @property
+    def angle_max(self) -> float:
+        return self.angle_min + self.angle_increment * (self.count - 1)
+
+    def angles(self) -> AngleArray:
+        return self.angles_cache
+
+    def slot_of(self, angle: AngleArray) -> npt.NDArray[np.int64]:
+        """Index of the slot whose interval (centre +- increment/2) holds `angle`; -1 if none.
+
+        Works for any angle convention ([-pi, pi], [0, 2 pi)) and either sign of the
+        increment: the angle is wrapped into the turn that starts half a slot before
+        `angle_min`.
+        """
+        offset = np.mod(angle - self.angle_min + 0.5 * self.angle_increment, TWO_PI)
+        if self.angle_increment < 0.0:
+            # Sweeping clockwise: measure the offset the other way round the circle.
+            offset = np.mod(-(angle - self.angle_min) - 0.5 * self.angle_increment, TWO_PI)
+        index = np.floor(offset / abs(self.angle_increment)).astype(np.int64)
+        index[index >= self.count] = -1
+        return index
+
+
+def normalized_ranges(scan: Scan) -> FloatArray:
+    """Ranges with finite readings outside [range_min, range_max] turned into NaN.
+
+    Drivers report a failed return in several ways (0, a value past range_max);
+    for fusion such a reading carries no information and must not hide the other
+    sensor, while +-Inf keep their REP-117 meaning.
+    """
+    ranges = scan.ranges
+    with np.errstate(invalid='ignore'):
+        out_of_limits = np.isfinite(ranges) & (
+            (ranges < scan.range_min) | (ranges > scan.range_max)
+        )
+    if not out_of_limits.any():
+        return ranges
+    return np.where(out_of_limits, np.float32(np.nan), ranges)
+
+
+def to_rep117(values: FloatArray, range_min: float, range_max: float) -> FloatArray:
+    """Map raw ranges to REP-117: above range_max -> +Inf, below range_min -> -Inf.
+
+    NaN stays NaN (no valid measurement). Values in range are unchanged.
+    """
+    with np.errstate(invalid='ignore'):
+        out = np.where(values > range_max, np.float32(np.inf), values)
+        return np.where(out < range_min, np.float32(-np.inf), out).astype(np.float32, copy=False)
