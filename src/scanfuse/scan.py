@@ -134,13 +134,9 @@ def normalized_ranges(scan: Scan) -> FloatArray:
     sensor, while +-Inf keep their REP-117 meaning.
     """
     ranges = scan.ranges
-    with np.errstate(invalid='ignore'):
-        out_of_limits = np.isfinite(ranges) & (
-            (ranges < scan.range_min) | (ranges > scan.range_max)
-        )
-    if not out_of_limits.any():
-        return ranges
-    return np.where(out_of_limits, np.float32(np.nan), ranges)
+    # Comparisons with NaN are False without a warning, so NaN and +-Inf stay.
+    usable = ((ranges >= scan.range_min) & (ranges <= scan.range_max)) | np.isinf(ranges)
+    return np.where(usable, ranges, np.float32(np.nan))
 
 
 def to_rep117(values: FloatArray, range_min: float, range_max: float) -> FloatArray:

@@ -77,9 +77,7 @@ class ConservativePlan:
     REP-117 order of the minimum: -Inf < finite < +Inf, NaN only where nothing else.
     """
 
-    first: IndexArray
-    span: IndexArray  # readings overlapping each slot, 0 outside the source's view
-    width: int
+    gather: npt.NDArray[np.intp]  # (width, slots) source indices; `count` means none
 
     @classmethod
     def build(cls, source: AngleGrid, target: AngleGrid) -> ConservativePlan:
@@ -91,18 +89,15 @@ class ConservativePlan:
         first = np.maximum(first, 0)
         last = np.minimum(last, source.count - 1)
         span = np.maximum(last - first + 1, 0)
-        first = np.minimum(first, source.count - 1)
-        width = int(span.max()) if span.size else 0
-        return cls(first, span, width)
+        width = max(int(span.max()), 1)
+        offsets = np.arange(width, dtype=np.intp)[:, np.newaxis]
+        gather = np.where(offsets < span, first + offsets, source.count)
+        return cls(gather)
 
     def apply(self, ranges: FloatArray) -> FloatArray:
-        out = np.full(self.first.shape, np.nan, dtype=np.float32)
-        last_index = ranges.size - 1
-        for k in range(self.width):
-            index = np.minimum(self.first + k, last_index)
-            values = np.where(k < self.span, ranges[index], np.float32(np.nan))
-            np.fmin(out, values, out=out)
-        return out
+        # Index `count` is the appended NaN, which fmin ignores.
+        padded = np.append(ranges, np.float32(np.nan))
+        return np.fmin.reduce(padded[self.gather], axis=0)
 
 
 Plan = LinearPlan | ConservativePlan
