@@ -84,3 +84,12 @@ def test_with_changes_validates():
     assert config.scan_height == 3
     with pytest.raises(ConfigError, match='scan_height'):
         FusionConfig().with_changes(scan_height=0)
+
+
+def test_shipped_example_parameter_file_holds_every_parameter():
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / 'examples' / 'scanfuse.yaml'
+    params = yaml.safe_load(path.read_text())['scanfuse']['ros__parameters']
+    assert set(params) == set(FusionConfig.model_fields) - {'scan_row'}
+    FusionConfig.from_ros_params(path)
