@@ -37,6 +37,53 @@ def demo(
     run_demo(out, console=Console())
 
 
+@app.command()
+def bag(  # noqa: PLR0917 - a typer command takes its options as parameters
+    input_bag: Annotated[
+        Path, typer.Argument(metavar='INPUT', help='ROS 2 bag (folder, .db3, .mcap) or ROS 1 .bag')
+    ],
+    output: Annotated[Path, typer.Argument(help='new ROS 2 bag folder to write')],
+    params: Annotated[
+        Path | None,
+        typer.Option('--params', help='ROS 2 parameter file (scanfuse: ros__parameters)'),
+    ] = None,
+    scan: Annotated[str | None, typer.Option('--scan', help='LaserScan topic')] = None,
+    depth: Annotated[str | None, typer.Option('--depth', help='depth Image topic')] = None,
+    camera_info: Annotated[
+        str | None, typer.Option('--camera-info', help='CameraInfo topic of the depth image')
+    ] = None,
+    storage: Annotated[str, typer.Option(help='output storage: mcap | sqlite3')] = 'mcap',
+    overwrite: Annotated[
+        bool, typer.Option('--overwrite', help='replace OUTPUT if it exists')
+    ] = False,
+    no_depth_scan: Annotated[
+        bool, typer.Option('--no-depth-scan', help='do not write the depth scan topic')
+    ] = False,
+    require_tf: Annotated[
+        bool, typer.Option('--require-tf', help='fail unless /tf_static gives the extrinsics')
+    ] = False,
+) -> None:
+    """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth."""
+    from scanfuse.config import FusionConfig  # noqa: PLC0415
+    from scanfuse.ros.bag import RichProgress, fuse_bag  # noqa: PLC0415
+
+    config = FusionConfig.from_ros_params(params) if params else FusionConfig()
+    report = fuse_bag(
+        input_bag,
+        output,
+        config=config,
+        scan_topic=scan,
+        depth_topic=depth,
+        camera_info_topic=camera_info,
+        storage=storage,
+        overwrite=overwrite,
+        write_depth_scan=not no_depth_scan,
+        require_tf=require_tf,
+        progress=RichProgress(),
+    )
+    Console().print(report.table())
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')

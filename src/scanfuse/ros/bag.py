@@ -1,0 +1,717 @@
+"""Offline fusion of recorded bags: every input message kept, /scan_fused and /scan_depth added.
+
+`fuse_bag` reads a ROS 2 bag (sqlite3 or MCAP, directory or single file) or a
+ROS 1 bag with rosbags' `AnyReader` and writes a ROS 2 bag (format version 8,
+readable by Humble's `ros2 bag`) that holds every input message unchanged (ROS 1
+messages converted to CDR) plus the fused scan and the depth scan of each LiDAR
+scan, stamped (header and log time) like that LiDAR scan. The fusion itself is
+`FusionPipeline.fuse`; this module only moves messages.
+
+Steps: check paths -> open -> choose topics -> read TF and the first CameraInfo
+(extrinsics, camera) -> one pass in log-time order (copy every message, pair
+scans with depth frames in a short window, fuse, write) -> rename into place.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+import sqlite3
+import struct
+import tempfile
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+from functools import partial
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+from rosbags.convert.converter import (
+    LATCH,
+    STATIC_MSGTYPE_RENAMES,
+    is_same_wireformat,
+    migrate_bytes,
+)
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import ConnectionExtRosbag2, MessageDefinitionFormat
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+
+from scanfuse.config import FusionConfig
+from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
+from scanfuse.pipeline import FusionPipeline
+from scanfuse.ros.messages import (
+    CAMERA_INFO,
+    IMAGE,
+    LASER_SCAN,
+    TF_MESSAGE,
+    DepthImage,
+    Distro,
+    camera_from_msg,
+    check_depth_matches_camera,
+    depth_from_msg,
+    frame_name,
+    is_depth_encoding,
+    scan_from_msg,
+    scan_to_cdr,
+    transforms_from_msg,
+)
+from scanfuse.ros.sync import StreamPairer, seconds_to_ns
+from scanfuse.ros.tf import TransformStore
+from scanfuse.transforms import Extrinsics, Transform
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+    from scanfuse.camera import CameraModel
+    from scanfuse.ros.sync import Pair
+    from scanfuse.scan import Scan
+
+logger = logging.getLogger(__name__)
+
+TF_STATIC_TOPIC = '/tf_static'
+TF_TOPIC = '/tf'
+# Every error a damaged or unreadable bag can raise inside rosbags and its storage back ends.
+_READ_ERRORS = (
+    AnyReaderError,
+    Ros1ReaderError,
+    Ros2ReaderError,
+    SerdeError,
+    TypesysError,
+    sqlite3.Error,
+    struct.error,
+    EOFError,
+    KeyError,
+    ValueError,
+)
+_DISTRO_STORES = {Distro.HUMBLE: Stores.ROS2_HUMBLE, Distro.JAZZY: Stores.ROS2_JAZZY}
+
+
+class Storage(str, Enum):
+    """Storage plugin of the output bag."""
+
+    MCAP = 'mcap'
+    SQLITE3 = 'sqlite3'
+
+
+_PLUGINS = {Storage.MCAP: StoragePlugin.MCAP, Storage.SQLITE3: StoragePlugin.SQLITE3}
+
+
+class BagProgress(Protocol):
+    """Where `fuse_bag` reports how far it got (a progress bar, or nothing)."""
+
+    def start(self, total: int) -> None: ...
+
+    def advance(self, count: int = 1) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+class NullProgress:
+    """Reports nowhere, so the processing loop never branches on whether a bar is shown."""
+
+    def start(self, total: int) -> None:
+        pass
+
+    def advance(self, count: int = 1) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+class RichProgress:
+    """A rich progress bar over the messages of the input bag."""
+
+    def __init__(self, description: str = 'fusing') -> None:
+        self._progress = Progress(
+            TextColumn('[progress.description]{task.description}'),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn('messages'),
+            TimeRemainingColumn(),
+            transient=False,
+        )
+        self._description = description
+        self._task: Any = None
+
+    def start(self, total: int) -> None:
+        self._progress.start()
+        self._task = self._progress.add_task(self._description, total=total)
+
+    def advance(self, count: int = 1) -> None:
+        self._progress.advance(self._task, count)
+
+    def stop(self) -> None:
+        self._progress.stop()
+
+
+@dataclass(frozen=True)
+class TopicChoice:
+    """The three input topics fused."""
+
+    scan: str
+    depth: str
+    camera_info: str
+
+
+@dataclass(frozen=True)
+class BagReport:
+    """What `fuse_bag` read, wrote and how fast it fused."""
+
+    input: Path
+    output: Path
+    storage: Storage
+    topics: TopicChoice
+    extrinsics_source: str
+    messages_read: int
+    messages_written: int
+    scans: int
+    scans_paired: int
+    scans_passed_through: int
+    depth_frames: int
+    peak_depth_frames: int
+    bag_duration_s: float
+    wall_time_s: float
+    scan_times_s: tuple[float, ...] = field(repr=False)
+
+    @property
+    def median_scan_time_s(self) -> float:
+        return float(np.median(self.scan_times_s)) if self.scan_times_s else math.nan
+
+    @property
+    def p99_scan_time_s(self) -> float:
+        return float(np.percentile(self.scan_times_s, 99)) if self.scan_times_s else math.nan
+
+    @property
+    def real_time_factor(self) -> float:
+        """Seconds of recording processed per second of wall time."""
+        return self.bag_duration_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+    def table(self) -> Table:
+        table = Table(title=f'scanfuse bag: {self.output}', show_header=False)
+        table.add_column('what')
+        table.add_column('value', justify='right')
+        rows = [
+            ('input', str(self.input)),
+            ('topics', f'{self.topics.scan} + {self.topics.depth} ({self.topics.camera_info})'),
+            ('extrinsics from', self.extrinsics_source),
+            ('messages read', str(self.messages_read)),
+            ('messages written', str(self.messages_written)),
+            ('scans paired with depth', str(self.scans_paired)),
+            ('scans passed through (no depth)', str(self.scans_passed_through)),
+            ('depth frames', str(self.depth_frames)),
+            ('median time per scan', f'{self.median_scan_time_s * 1e3:.2f} ms'),
+            ('p99 time per scan', f'{self.p99_scan_time_s * 1e3:.2f} ms'),
+            ('wall time', f'{self.wall_time_s:.2f} s'),
+            ('real-time factor', f'{self.real_time_factor:.1f}x'),
+        ]
+        for name, value in rows:
+            table.add_row(name, value)
+        return table
+
+
+def fuse_bag(
+    input: str | Path,  # noqa: A002 - the name the CLI shows
+    output: str | Path,
+    *,
+    config: FusionConfig | None = None,
+    scan_topic: str | None = None,
+    depth_topic: str | None = None,
+    camera_info_topic: str | None = None,
+    storage: Storage | str = Storage.MCAP,
+    overwrite: bool = False,
+    write_depth_scan: bool = True,
+    require_tf: bool = False,
+    distro: Distro = Distro.HUMBLE,
+    progress: BagProgress | None = None,
+) -> BagReport:
+    """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag."""
+    config = config or FusionConfig()
+    source, target = Path(input), Path(output)
+    storage = _storage(storage)
+    _check_paths(source, target, overwrite=overwrite)
+    started = time.perf_counter()
+    staging = Path(
+        tempfile.mkdtemp(prefix=f'.{target.name}.', suffix='.partial', dir=target.parent)
+    )
+    try:
+        with _open_reader(source, distro) as reader:
+            job = _BagJob(reader, config, distro, write_depth_scan=write_depth_scan)
+            topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
+            job.read_static(require_tf=require_tf)
+            counts = job.run(staging / target.name, storage, progress or NullProgress())
+        _move_into_place(staging / target.name, target, overwrite=overwrite)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return BagReport(
+        input=source,
+        output=target,
+        storage=storage,
+        topics=topics,
+        extrinsics_source=job.extrinsics_source,
+        bag_duration_s=job.duration_ns / 1e9,
+        wall_time_s=time.perf_counter() - started,
+        **counts,
+    )
+
+
+def _storage(storage: Storage | str) -> Storage:
+    try:
+        return Storage(storage)
+    except ValueError:
+        choices = ', '.join(item.value for item in Storage)
+        msg = f'output storage {storage!r} is not supported; use one of {choices}'
+        raise BagError(msg) from None
+
+
+def _check_paths(source: Path, target: Path, *, overwrite: bool) -> None:
+    if not source.exists():
+        msg = f'input bag {source} does not exist'
+        raise BagError(msg)
+    src, dst = source.resolve(), target.resolve()
+    if src == dst or src.is_relative_to(dst) or dst.is_relative_to(src):
+        msg = (
+            f'output {target} overlaps the input bag {source}; '
+            'write the fused bag somewhere else (the input is never modified)'
+        )
+        raise BagError(msg)
+    if target.exists() and not overwrite:
+        msg = f'output {target} exists already; choose another path or pass --overwrite'
+        raise BagError(msg)
+    if not target.parent.is_dir():
+        msg = f'folder {target.parent} of the output bag does not exist; create it first'
+        raise BagError(msg)
+
+
+def _move_into_place(written: Path, target: Path, *, overwrite: bool) -> None:
+    if target.exists() or target.is_symlink():
+        if not overwrite:
+            msg = f'output {target} appeared while fusing; not overwriting it'
+            raise BagError(msg)
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        else:
+            target.unlink()
+    written.rename(target)
+
+
+class _ReaderScope:
+    """`AnyReader` as a context whose failures (damaged bags) become BagError."""
+
+    def __init__(self, source: Path, distro: Distro) -> None:
+        self.source = source
+        self.reader = _guard_read(
+            source, lambda: AnyReader([source], default_typestore=_fresh_store(distro))
+        )
+
+    def __enter__(self) -> AnyReader:
+        _guard_read(self.source, self.reader.open)
+        reader: AnyReader = self.reader
+        return reader
+
+    def __exit__(self, *exc: object) -> None:
+        if self.reader.stack is not None:
+            self.reader.close()
+
+
+def _open_reader(source: Path, distro: Distro) -> _ReaderScope:
+    return _ReaderScope(source, distro)
+
+
+def _guard_read(source: Path, action: Callable[[], Any]) -> Any:
+    try:
+        return action()
+    except ScanfuseError:
+        raise
+    except (*_READ_ERRORS, OSError) as err:
+        msg = f'cannot read bag {source}: {err or type(err).__name__}; is it complete and a bag?'
+        raise BagError(msg) from err
+
+
+def _fresh_store(distro: Distro) -> Typestore:
+    """A private typestore of `distro` (types of ROS 1 bags may be added to it)."""
+    store = get_typestore(Stores.EMPTY)
+    store.register(dict(get_typestore(_DISTRO_STORES[Distro(distro)]).fielddefs))
+    return store
+
+
+def describe_topics(topics: dict[str, str]) -> str:
+    return ', '.join(f'{name} ({msgtype})' for name, msgtype in sorted(topics.items())) or 'none'
+
+
+@dataclass
+class _Frame:
+    image: DepthImage
+    camera: CameraModel
+
+
+@dataclass
+class _PendingScan:
+    scan: Scan
+    raw: bytes
+    log_time: int
+
+
+class _BagJob:
+    """One run of `fuse_bag` over an open reader."""
+
+    def __init__(
+        self, reader: AnyReader, config: FusionConfig, distro: Distro, *, write_depth_scan: bool
+    ) -> None:
+        self.reader = reader
+        self.config = config
+        self.write_depth_scan = write_depth_scan
+        self.source = Path(str(reader.paths[0]))
+        # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
+        self.store = reader.typestore if reader.is2 else _fresh_store(distro)
+        self.topics_types = {
+            name: info.msgtype or '?'
+            for name, info in _guard_read(self.source, lambda: reader.topics).items()
+        }
+        self.duration_ns = reader.duration if reader.message_count else 0
+        self.converters: dict[str, Callable[[bytes], bytes]] = {}
+        self.choice: TopicChoice | None = None
+        self.first_camera: CameraModel | None = None
+        self.extrinsics = Extrinsics.from_config(config)
+        self.extrinsics_source = 'parameters'
+        self.scan_frame = ''
+        self.depth_frame = ''
+
+    # ------------------------------------------------------------ reading helpers
+
+    def msgtype(self, connection: Connection) -> str:
+        return STATIC_MSGTYPE_RENAMES.get(connection.msgtype, connection.msgtype)
+
+    def to_cdr(self, connection: Connection, raw: bytes) -> bytes:
+        """The message as ROS 2 CDR: unchanged for ROS 2 bags, converted for ROS 1."""
+        if self.reader.is2:
+            return raw
+        convert = self.converters.get(connection.msgtype)
+        if convert is None:
+            convert = self.converters[connection.msgtype] = self._ros1_converter(connection)
+        try:
+            return convert(raw)
+        except (SerdeError, ValueError, struct.error) as err:
+            msg = (
+                f'cannot convert a ROS 1 {connection.msgtype} on {connection.topic} to ROS 2: {err}'
+            )
+            raise MessageError(msg) from err
+
+    def _ros1_converter(self, connection: Connection) -> Callable[[bytes], bytes]:
+        src_type, dst_type = connection.msgtype, self.msgtype(connection)
+        if dst_type not in self.store.fielddefs:
+            # A type ROS 2 does not ship: keep its ROS 1 fields, with the ROS 2 header.
+            definition, _ = self.reader.typestore.generate_msgdef(src_type, ros_version=2)
+            types = get_types_from_msg(definition, dst_type)
+            types.pop('std_msgs/msg/Header', None)
+            self.store.register(types)
+        if is_same_wireformat(self.reader.typestore, self.store, src_type, dst_type):
+            return lambda raw: bytes(self.store.ros1_to_cdr(raw, dst_type))
+        migrate = partial(migrate_bytes, self.reader.typestore, self.store, src_type, dst_type, {})
+        return lambda raw: bytes(migrate(raw, src_is2=False, dst_is2=True))
+
+    def decode(self, connection: Connection, raw: bytes) -> Any:
+        cdr = self.to_cdr(connection, raw)
+        try:
+            return self.store.deserialize_cdr(cdr, self.msgtype(connection))
+        except (SerdeError, ValueError, IndexError, struct.error) as err:
+            msg = f'cannot decode a {connection.msgtype} on {connection.topic}: {err}'
+            raise MessageError(msg) from err
+
+    def connections(self, topic: str) -> list[Connection]:
+        return [c for c in self.reader.connections if c.topic == topic]
+
+    def messages(self, connections: list[Connection]) -> Iterator[tuple[Connection, int, bytes]]:
+        if not connections:  # rosbags reads every topic when given none
+            return
+        iterator = self.reader.messages(connections=connections)
+        while True:
+            item = _guard_read(self.source, lambda: next(iterator, None))
+            if item is None:
+                return
+            yield item
+
+    def first_message(self, topic: str) -> Any:
+        connections = self.connections(topic)
+        for connection, _, raw in self.messages(connections):
+            return self.decode(connection, raw)
+        return None
+
+    # ------------------------------------------------------------ topics
+
+    def choose_topics(
+        self, scan: str | None, depth: str | None, camera_info: str | None
+    ) -> TopicChoice:
+        reserved = {self.config.fused_topic, self.config.depth_scan_topic}
+        clash = sorted(reserved & set(self.topics_types))
+        if clash:
+            msg = (
+                f'the input bag already has {", ".join(clash)}; set fused_topic and '
+                'depth_scan_topic in the parameters to names the bag does not use'
+            )
+            raise BagError(msg)
+        scan_topic = self._choose(scan, self.config.scan_topic, LASER_SCAN, '--scan', 'LaserScan')
+        images = {name: t for name, t in self.topics_types.items() if t == IMAGE}
+        depth_topics = {name: t for name, t in images.items() if self._is_depth_topic(name)}
+        depth_topic = self._choose_depth(depth, images, depth_topics)
+        sibling = depth_topic.rsplit('/', 1)[0] + '/camera_info'
+        info_default = sibling if sibling in self.topics_types else self.config.camera_info_topic
+        info_topic = self._choose(
+            camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
+        )
+        self.choice = TopicChoice(scan_topic, depth_topic, info_topic)
+        return self.choice
+
+    def _candidates(self, msgtype: str) -> dict[str, str]:
+        reserved = {self.config.fused_topic, self.config.depth_scan_topic}
+        return {
+            name: t
+            for name, t in self.topics_types.items()
+            if t == msgtype and name not in reserved
+        }
+
+    def _choose(
+        self, requested: str | None, default: str, msgtype: str, option: str, kind: str
+    ) -> str:
+        candidates = self._candidates(msgtype)
+        if requested is not None:
+            if candidates.get(requested) == msgtype:
+                return requested
+            found = self.topics_types.get(requested)
+            what = f'is a {found}' if found else 'is not in the bag'
+            msg = (
+                f'{kind} topic {requested} {what}; {msgtype} topics: '
+                f'{describe_topics(candidates)}; all topics: {describe_topics(self.topics_types)}'
+            )
+            raise BagError(msg)
+        if default in candidates:
+            return default
+        if len(candidates) == 1:
+            return next(iter(candidates))
+        if not candidates:
+            msg = (
+                f'no {kind} topic ({msgtype}) in bag {self.source}; '
+                f'topics: {describe_topics(self.topics_types)}'
+            )
+            raise BagError(msg)
+        msg = (
+            f'several {kind} topics in bag {self.source}: {describe_topics(candidates)}; '
+            f'choose one with {option}'
+        )
+        raise BagError(msg)
+
+    def _is_depth_topic(self, topic: str) -> bool:
+        first = self.first_message(topic)
+        return first is not None and is_depth_encoding(str(first.encoding))
+
+    def _choose_depth(
+        self, requested: str | None, images: dict[str, str], depth_topics: dict[str, str]
+    ) -> str:
+        listing = (
+            f'depth Image topics (16UC1/32FC1): {describe_topics(depth_topics)}; '
+            f'all topics: {describe_topics(self.topics_types)}'
+        )
+        if requested is not None:
+            if requested in depth_topics:
+                return requested
+            if requested in images:
+                msg = f'Image topic {requested} is not a depth image (16UC1 or 32FC1); {listing}'
+            else:
+                found = self.topics_types.get(requested)
+                what = f'is a {found}' if found else 'is not in the bag'
+                msg = f'depth topic {requested} {what}; {listing}'
+            raise BagError(msg)
+        if self.config.depth_topic in depth_topics:
+            return self.config.depth_topic
+        if len(depth_topics) == 1:
+            return next(iter(depth_topics))
+        if not depth_topics:
+            msg = f'no depth Image topic (16UC1 or 32FC1) in bag {self.source}; {listing}'
+            raise BagError(msg)
+        msg = f'several depth Image topics in bag {self.source}; choose one with --depth; {listing}'
+        raise BagError(msg)
+
+    # ------------------------------------------------------------ TF and camera
+
+    def read_static(self, *, require_tf: bool) -> None:
+        """Read the first CameraInfo, the sensors' frames and TF; choose the extrinsics."""
+        assert self.choice is not None
+        info = self.first_message(self.choice.camera_info)
+        if info is None:
+            msg = f'CameraInfo topic {self.choice.camera_info} has no messages; cannot fuse'
+            raise BagError(msg)
+        self.first_camera = camera_from_msg(info)
+        scan = self.first_message(self.choice.scan)
+        depth = self.first_message(self.choice.depth)
+        if scan is None or depth is None:
+            empty = self.choice.scan if scan is None else self.choice.depth
+            msg = f'topic {empty} has no messages; cannot fuse'
+            raise BagError(msg)
+        self.scan_frame = frame_name(str(scan.header.frame_id))
+        self.depth_frame = frame_name(str(depth.header.frame_id) or info.header.frame_id)
+        tree = self._read_tf()
+        base = self.config.base_frame
+        try:
+            self.extrinsics = self._extrinsics_from_tf(tree)
+        except TransformError as err:
+            if require_tf:
+                msg = f'--require-tf: no extrinsics from TF in {self.source}: {err}'
+                raise TransformError(msg) from err
+            logger.warning('extrinsics from the parameters, not TF: %s', err)
+        else:
+            self.extrinsics_source = f'TF ({base} -> {self.scan_frame}, {self.depth_frame})'
+
+    def _extrinsics_from_tf(self, tree: TransformStore) -> Extrinsics:
+        if not self.config.use_tf:
+            msg = 'use_tf is false in the parameters'
+            raise TransformError(msg)
+        base = self.config.base_frame
+        return Extrinsics(
+            base_to_laser=Transform.from_matrix(tree.lookup(base, self.scan_frame)),
+            base_to_camera_optical=Transform.from_matrix(tree.lookup(base, self.depth_frame)),
+        )
+
+    def _read_tf(self) -> TransformStore:
+        tree = TransformStore()
+        for topic, static in ((TF_STATIC_TOPIC, True), (TF_TOPIC, False)):
+            connections = [c for c in self.connections(topic) if self.msgtype(c) == TF_MESSAGE]
+            for connection, _, raw in self.messages(connections):
+                tree.add_all(transforms_from_msg(self.decode(connection, raw)), static=static)
+        return tree
+
+    # ------------------------------------------------------------ the pass
+
+    def run(self, path: Path, storage: Storage, progress: BagProgress) -> dict[str, Any]:
+        assert self.choice is not None
+        assert self.first_camera is not None
+        pipeline = FusionPipeline(self.config)
+        pairer: StreamPairer[_PendingScan, _Frame] = StreamPairer(
+            seconds_to_ns(self.config.max_time_offset)
+        )
+        camera = self.first_camera
+        counts = {'messages_read': 0, 'scans': 0, 'depth_frames': 0, 'scans_paired': 0}
+        times: list[float] = []
+        writer = Writer(path, version=8, storage_plugin=_PLUGINS[storage])
+        try:
+            writer.open()
+            outputs = self._add_connections(writer)
+            fused_conn = writer.add_connection(
+                self.config.fused_topic, LASER_SCAN, typestore=self.store
+            )
+            depth_conn = (
+                writer.add_connection(
+                    self.config.depth_scan_topic, LASER_SCAN, typestore=self.store
+                )
+                if self.write_depth_scan
+                else None
+            )
+
+            def emit(pairs: list[Pair[_PendingScan, _Frame]]) -> None:
+                for pair in pairs:
+                    lidar = pair.scan
+                    if pair.depth is None:
+                        writer.write(fused_conn, lidar.log_time, lidar.raw)
+                        continue
+                    start = time.perf_counter()
+                    result = pipeline.fuse(
+                        lidar.scan, pair.depth.image.depth, pair.depth.camera, self.extrinsics
+                    )
+                    fused = scan_to_cdr(result.fused, self.store)
+                    depth_raw = scan_to_cdr(result.depth_scan, self.store) if depth_conn else b''
+                    times.append(time.perf_counter() - start)
+                    writer.write(fused_conn, lidar.log_time, fused)
+                    if depth_conn is not None:
+                        writer.write(depth_conn, lidar.log_time, depth_raw)
+                    counts['scans_paired'] += 1
+
+            progress.start(self.reader.message_count)
+            try:
+                for connection, log_time, raw in self.messages(self.reader.connections):
+                    counts['messages_read'] += 1
+                    cdr = self.to_cdr(connection, raw)
+                    writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
+                    if connection.topic == self.choice.scan:
+                        scan = scan_from_msg(self.store.deserialize_cdr(cdr, LASER_SCAN))
+                        counts['scans'] += 1
+                        emit(pairer.add_scan(scan.stamp_ns, _PendingScan(scan, cdr, log_time)))
+                    elif connection.topic == self.choice.depth:
+                        image = depth_from_msg(self.store.deserialize_cdr(cdr, IMAGE))
+                        check_depth_matches_camera(image, camera)
+                        counts['depth_frames'] += 1
+                        emit(pairer.add_depth(image.stamp_ns, _Frame(image, camera)))
+                    elif connection.topic == self.choice.camera_info:
+                        camera = camera_from_msg(self.store.deserialize_cdr(cdr, CAMERA_INFO))
+                    progress.advance()
+                emit(pairer.finish())
+            finally:
+                progress.stop()
+            written = sum(writer.counts.values())
+            writer.close()
+        except WriterError as err:
+            writer.abort()
+            msg = f'cannot write the output bag: {err}'
+            raise BagError(msg) from err
+        except BaseException:
+            if writer.storage is not None:
+                writer.abort()
+            raise
+        return {
+            **counts,
+            'messages_written': written,
+            'scans_passed_through': counts['scans'] - counts['scans_paired'],
+            'peak_depth_frames': pairer.peak_frames,
+            'scan_times_s': tuple(times),
+        }
+
+    def _add_connections(self, writer: Writer) -> dict[tuple[int, int], Connection]:
+        """One output connection per input connection (ROS 1 connections of a topic merge)."""
+        out: dict[tuple[int, int], Connection] = {}
+        for connection in self.reader.connections:
+            msgtype = self.msgtype(connection)
+            ext = connection.ext
+            if not isinstance(ext, ConnectionExtRosbag2):
+                ext = ConnectionExtRosbag2('cdr', LATCH if ext.latching else [])
+            existing = next(
+                (
+                    c
+                    for c in writer.connections
+                    if c.topic == connection.topic and c.msgtype == msgtype and c.ext == ext
+                ),
+                None,
+            )
+            if existing is None:
+                keeps_definition = (
+                    self.reader.is2
+                    and connection.digest
+                    and connection.msgdef.format != MessageDefinitionFormat.NONE
+                )
+                if keeps_definition:
+                    existing = writer.add_connection(
+                        connection.topic,
+                        msgtype,
+                        msgdef=connection.msgdef.data,
+                        rihs01=connection.digest,
+                        serialization_format=ext.serialization_format,
+                        offered_qos_profiles=ext.offered_qos_profiles,
+                    )
+                else:
+                    existing = writer.add_connection(
+                        connection.topic,
+                        msgtype,
+                        typestore=self.store,
+                        serialization_format=ext.serialization_format,
+                        offered_qos_profiles=ext.offered_qos_profiles,
+                    )
+            out[connection.id, id(connection.owner)] = existing
+        return out
