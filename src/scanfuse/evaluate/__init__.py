@@ -1,0 +1,1 @@
+"""Evaluation: figures, metrics and reports built on the one fusion pipeline."""
