@@ -57,6 +57,7 @@ from scanfuse.ros.messages import (
     camera_from_msg,
     check_depth_matches_camera,
     depth_from_msg,
+    deserialize,
     frame_name,
     is_depth_encoding,
     scan_from_msg,
@@ -422,12 +423,7 @@ class _BagJob:
         return lambda raw: bytes(migrate(raw, src_is2=False, dst_is2=True))
 
     def decode(self, connection: Connection, raw: bytes) -> Any:
-        cdr = self.to_cdr(connection, raw)
-        try:
-            return self.store.deserialize_cdr(cdr, self.msgtype(connection))
-        except (SerdeError, ValueError, IndexError, struct.error) as err:
-            msg = f'cannot decode a {connection.msgtype} on {connection.topic}: {err}'
-            raise MessageError(msg) from err
+        return deserialize(self.to_cdr(connection, raw), self.msgtype(connection), self.store)
 
     def connections(self, topic: str) -> list[Connection]:
         return [c for c in self.reader.connections if c.topic == topic]
@@ -642,16 +638,16 @@ class _BagJob:
                     cdr = self.to_cdr(connection, raw)
                     writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
                     if connection.topic == self.choice.scan:
-                        scan = scan_from_msg(self.store.deserialize_cdr(cdr, LASER_SCAN))
+                        scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
                         counts['scans'] += 1
                         emit(pairer.add_scan(scan.stamp_ns, _PendingScan(scan, cdr, log_time)))
                     elif connection.topic == self.choice.depth:
-                        image = depth_from_msg(self.store.deserialize_cdr(cdr, IMAGE))
+                        image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
                         check_depth_matches_camera(image, camera)
                         counts['depth_frames'] += 1
                         emit(pairer.add_depth(image.stamp_ns, _Frame(image, camera)))
                     elif connection.topic == self.choice.camera_info:
-                        camera = camera_from_msg(self.store.deserialize_cdr(cdr, CAMERA_INFO))
+                        camera = camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store))
                     progress.advance()
                 emit(pairer.finish())
             finally:

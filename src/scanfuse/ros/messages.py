@@ -101,7 +101,8 @@ def deserialize(raw: RawMessage, msgtype: str, store: Typestore | None = None) -
     """A message object from CDR bytes; MessageError when the bytes are not a `msgtype`."""
     store = store or typestore()
     try:
-        return store.deserialize_cdr(raw, msgtype)
+        # A memoryview makes rosbags return arrays that view the buffer (bytes would be sliced).
+        return store.deserialize_cdr(memoryview(raw), msgtype)
     except (SerdeError, ValueError, IndexError) as err:
         msg = (
             f'cannot decode a {msgtype} from {len(raw)} CDR bytes ({err}); is the topic type right?'

@@ -89,7 +89,7 @@ class StreamPairer(Generic[S, D]):
     stamp seen minus `reorder_ns` (the watermark) is more than `max_offset_ns` past
     a scan, no frame still to come can pair with it and its pair is final. Frames
     too old for every pending and future scan are dropped, so only the frames of
-    about `reorder_ns + max_offset_ns` of recording are held.
+    about `reorder_ns + 2 max_offset_ns` plus one scan period of recording are held.
     """
 
     def __init__(self, max_offset_ns: int, reorder_ns: int = NANOSECONDS // 2) -> None:

@@ -68,6 +68,8 @@ class Scene:
     start_ns: int = 1_700_000_000 * NANOSECONDS
     depth_gap: tuple[float, float] | None = None
     log_delay: float = 0.01
+    publish_tf: bool = True
+    publish_camera_info: bool = True
 
     @property
     def camera(self) -> CameraModel:
@@ -169,9 +171,10 @@ def scene_messages(scene: Scene) -> list[tuple[str, str, int, bytes]]:
     """(topic, msgtype, log time, CDR) of every message of the recording, in log-time order."""
     store = typestore()
     delay = round(scene.log_delay * NANOSECONDS)
-    messages = [
-        ('/tf_static', TF_MESSAGE, scene.start_ns, tf_message_to_cdr(scene.transforms(), store))
-    ]
+    messages = []
+    if scene.publish_tf:
+        tf = tf_message_to_cdr(scene.transforms(), store)
+        messages.append(('/tf_static', TF_MESSAGE, scene.start_ns, tf))
     ranges = scene.lidar_ranges()
     for stamp in scene.scan_stamps():
         scan = Scan(
@@ -194,15 +197,21 @@ def scene_messages(scene: Scene) -> list[tuple[str, str, int, bytes]]:
         image = depth_to_cdr(depth, frame_id=camera.frame_id, stamp_ns=stamp, store=store)
         info = camera_to_cdr(camera, stamp_ns=stamp, store=store)
         messages.append(('/camera/depth/image_raw', IMAGE, log, image))
-        messages.append(('/camera/depth/camera_info', CAMERA_INFO, log, info))
+        if scene.publish_camera_info:
+            messages.append(('/camera/depth/camera_info', CAMERA_INFO, log, info))
     messages.sort(key=lambda item: item[2])
     return messages
 
 
 def write_scene_bag(path: Path, scene: Scene | None = None, *, storage: str = 'mcap') -> Path:
     """Write the scene as a ROS 2 bag (`storage` mcap or sqlite3) or, for 'ros1', a ROS 1 bag."""
-    scene = scene or Scene()
-    messages = scene_messages(scene)
+    return write_bag(path, scene_messages(scene or Scene()), storage=storage)
+
+
+def write_bag(
+    path: Path, messages: list[tuple[str, str, int, bytes]], *, storage: str = 'mcap'
+) -> Path:
+    """Write (topic, msgtype, log time, CDR) messages as a ROS 2 bag or ('ros1') a ROS 1 bag."""
     if storage == 'ros1':
         return _write_ros1(path, messages)
     plugin = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}[storage]
