@@ -39,6 +39,7 @@ if TYPE_CHECKING:
 
     F32 = npt.NDArray[np.float32]
     F64 = npt.NDArray[np.float64]
+    Mask = npt.NDArray[np.bool_]
 
 # A ray this close to horizontal keeps one height whatever its depth.
 _LEVEL_RAY = 1e-12
@@ -269,16 +270,15 @@ def _slot_coordinate(angle: F64, grid: AngleGrid) -> F64:
     return coordinate
 
 
-def _slots_in_view(
-    near: tuple[F64, F64], far: tuple[F64, F64], grid: AngleGrid
-) -> npt.NDArray[np.bool_]:
-    """Slots swept by the segments near -> far (points in the LiDAR's xy plane).
+def _pixel_arcs(near: tuple[F64, F64], far: tuple[F64, F64], grid: AngleGrid) -> tuple[F64, F64]:
+    """Slot-coordinate interval [first, last] swept by each segment near -> far.
 
     Each pixel sees obstacles along a segment of its ray (from its lo to its hi
     depth); seen from the LiDAR's origin the segment sweeps the shorter arc
     between its ends (a segment not through the origin subtends less than pi).
     With an off-centre camera the near end can lie far to the side of the far
-    end, so both ends count, not the ray's direction alone.
+    end, so both ends count, not the ray's direction alone. `first` is in
+    (-turn / 2, turn), `last - first` below turn / 2; NaN where near is NaN.
     """
     near_angle = np.arctan2(near[1], near[0])
     far_angle = np.arctan2(far[1], far[0])
@@ -286,25 +286,112 @@ def _slots_in_view(
     sign = 1.0 if grid.angle_increment > 0.0 else -1.0
     start = _slot_coordinate(near_angle, grid)
     end = start + sign * sweep / abs(grid.angle_increment)
-    first = np.minimum(start, end)
-    last = np.maximum(start, end)
+    return np.minimum(start, end), np.maximum(start, end)
+
+
+def _tile_arcs(
+    first: F64, last: F64, shape: tuple[int, int], tile: int, turn: float
+) -> tuple[F64, F64]:
+    """Union [first, last] of the arcs of the pixels of each tile x tile block, row-major.
+
+    NaN for a tile none of whose pixels can see the slab.
+    """
+    rows, columns = shape
+    tiles_down, tiles_across = -(-rows // tile), -(-columns // tile)
+
+    def blocks(values: F64) -> F64:
+        padded = np.full((tiles_down * tile, tiles_across * tile), np.nan)
+        padded[:rows, :columns] = values.reshape(shape)
+        grouped: F64 = padded.reshape(tiles_down, tile, tiles_across, tile).transpose(0, 2, 1, 3)
+        return grouped.reshape(tiles_down * tiles_across, tile * tile)
+
+    first_blocks, last_blocks = blocks(first), blocks(last)
+    has_arc = ~np.isnan(first_blocks)
+    anchor = np.take_along_axis(first_blocks, np.argmax(has_arc, axis=1)[:, None], axis=1)
+    # Move each arc by whole turns next to its tile's anchor, so no union crosses the seam.
+    shift = turn * np.round((anchor - first_blocks) / turn)
+    # fmin/fmax skip NaN (pixels that see nothing) and give NaN for tiles of only those.
+    tile_first: F64 = np.fmin.reduce(first_blocks + shift, axis=1)
+    tile_last: F64 = np.fmax.reduce(last_blocks + shift, axis=1)
+    return tile_first, tile_last
+
+
+def _arc_pieces(
+    first: F64, last: F64, grid: AngleGrid
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """(owner, first slot, last slot + 1) of every arc's slot runs, arcs split at the seam."""
     turn = TWO_PI / abs(grid.angle_increment)
-    # start is in [0, turn) and |sweep| < turn / 2: an arc may cross the seam of the
-    # turn once, below 0 or above turn; such an arc is split in two pieces.
-    pieces_first = np.concatenate([np.maximum(first, 0.0), first[first < 0.0] + turn])
-    pieces_last = np.concatenate([np.minimum(last, turn), np.full(int((first < 0.0).sum()), turn)])
+    owner = np.arange(first.size)
+    known = ~np.isnan(first)
+    first, last, owner = first[known], last[known], owner[known]
+    # Bring each arc to start in [0, turn); it may then run past turn once.
+    shift = turn * np.floor(first / turn)
+    first, last = first - shift, last - shift
     wrapped = last >= turn
-    pieces_first = np.concatenate([pieces_first, np.zeros(int(wrapped.sum()))])
-    pieces_last = np.concatenate([pieces_last, last[wrapped] - turn])
-    first_slot = np.floor(pieces_first).astype(np.int64)
-    last_slot = np.minimum(np.floor(pieces_last).astype(np.int64), grid.count - 1)
-    used = (pieces_first <= pieces_last) & (first_slot <= last_slot)
-    # Difference array: +1 where a run of covered slots starts, -1 after it ends.
-    marks = np.zeros(grid.count + 1, dtype=np.int64)
-    np.add.at(marks, first_slot[used], 1)
-    np.add.at(marks, last_slot[used] + 1, -1)
-    in_view: npt.NDArray[np.bool_] = np.cumsum(marks[:-1]) > 0
-    return in_view
+    piece_owner = np.concatenate([owner, owner[wrapped]])
+    piece_first = np.concatenate([first, np.zeros(int(wrapped.sum()))])
+    piece_last = np.concatenate([np.minimum(last, turn), last[wrapped] - turn])
+    first_slot = np.floor(piece_first).astype(np.int64)
+    last_slot = np.minimum(np.floor(piece_last).astype(np.int64), grid.count - 1)
+    used = first_slot <= last_slot
+    return piece_owner[used], first_slot[used], last_slot[used] + 1
+
+
+def _runs_to_mask(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], count: int) -> Mask:
+    """Slots inside any run [start, end): +1 where a run starts, -1 where it ends, summed."""
+    marks = np.bincount(starts, minlength=count + 1) - np.bincount(ends, minlength=count + 1)
+    mask: Mask = np.cumsum(marks[:count]) > 0
+    return mask
+
+
+@dataclass(frozen=True)
+class ViewCoverage:
+    """Which LiDAR slots the camera covers, per block of pixels (tile x tile).
+
+    A slot is in view when some pixel's segment of sight through the collision
+    slab (within the range limits) crosses it. Per frame a slot counts as seen,
+    and reads +Inf when nothing is in it, when a tile covering it has valid
+    depth at its centre pixel; without valid depth it stays NaN (no information).
+    """
+
+    tile: int
+    rows: npt.NDArray[np.intp]
+    columns: npt.NDArray[np.intp]
+    owner: npt.NDArray[np.int64]
+    starts: npt.NDArray[np.int64]
+    ends: npt.NDArray[np.int64]
+    in_view: Mask
+
+    @classmethod
+    def build(
+        cls,
+        near: tuple[F64, F64],
+        far: tuple[F64, F64],
+        shape: tuple[int, int],
+        grid: AngleGrid,
+        tile_pixels: int = 20_000,
+    ) -> ViewCoverage:
+        tile = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / tile_pixels)))
+        first, last = _pixel_arcs(near, far, grid)
+        turn = TWO_PI / abs(grid.angle_increment)
+        tile_first, tile_last = _tile_arcs(first, last, shape, tile, turn)
+        owner, starts, ends = _arc_pieces(tile_first, tile_last, grid)
+        centre_rows = np.minimum(np.arange(0, shape[0], tile) + tile // 2, shape[0] - 1)
+        centre_columns = np.minimum(np.arange(0, shape[1], tile) + tile // 2, shape[1] - 1)
+        return cls(
+            tile=tile,
+            rows=centre_rows,
+            columns=centre_columns,
+            owner=owner,
+            starts=starts,
+            ends=ends,
+            in_view=_runs_to_mask(starts, ends, grid.count),
+        )
+
+    def seen(self, valid_centres: Mask) -> Mask:
+        """Slots covered by the tiles whose centre pixel holds valid depth (row-major flags)."""
+        used = valid_centres.ravel()[self.owner]
+        return _runs_to_mask(self.starts[used], self.ends[used], self.in_view.size)
 
 
 class ObstacleProjector:
@@ -351,12 +438,12 @@ class ObstacleProjector:
             range_min=range_min,
             range_max=range_max,
         )
-        seen = lo <= hi
-        near = (a_x[seen] * lo[seen] + b_x, a_y[seen] * lo[seen] + b_y)
-        far = (a_x[seen] * hi[seen] + b_x, a_y[seen] * hi[seen] + b_y)
-        in_view = _slots_in_view(near, far, lidar_grid)
-        self.in_view = in_view
-        self._empty = np.where(in_view, np.float32(np.inf), np.float32(np.nan)).astype(np.float32)
+        with np.errstate(invalid='ignore'):
+            sees_slab = np.where(lo <= hi, 1.0, np.nan)
+        near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
+        far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
+        self.coverage = ViewCoverage.build(near, far, (camera.height, camera.width), lidar_grid)
+        self.in_view = self.coverage.in_view
 
         self._b = (np.float32(b_x), np.float32(b_y))
         self._metres = (
@@ -373,8 +460,20 @@ class ObstacleProjector:
             (a_y * MILLIMETRE).astype(np.float32),
         )
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
+        limits_mm = _millimetre_interval(np.array([range_min]), np.array([range_max]))
+        self._millimetre_limits = (int(limits_mm[0][0]), int(limits_mm[1][0]))
         self.lookup = SlotLookup.for_grid(lidar_grid)
         self._warm_up()
+
+    def _valid_centres(self, depth: npt.NDArray[Any]) -> Mask:
+        """Whether each tile's centre pixel holds a depth inside the range limits."""
+        coverage = self.coverage
+        centres = depth[np.ix_(coverage.rows, coverage.columns)]
+        if depth.dtype == np.uint16:
+            low, high = self._millimetre_limits
+            return (centres >= low) & (centres <= high)
+        with np.errstate(invalid='ignore'):
+            return (centres >= self.range_min) & (centres <= self.range_max)
 
     @property
     def uses_kernel(self) -> bool:
@@ -424,8 +523,9 @@ class ObstacleProjector:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
 
         On the LiDAR's grid: the nearest obstacle's horizontal range from the LiDAR's
-        origin per slot; +Inf where the camera sees the slot and nothing is in the slab;
-        NaN outside the camera's view; REP-117 +-Inf for ranges outside the limits.
+        origin per slot; +Inf where the camera saw valid depth in the slot and nothing in
+        the slab; NaN outside the camera's view or where it has no valid depth; REP-117
+        -Inf for an obstacle nearer than range_min, +Inf beyond range_max.
         `frame_id` and `stamp_ns` are left for the caller (the LiDAR's).
         """
         self.camera.check_depth(depth)
@@ -433,8 +533,9 @@ class ObstacleProjector:
             depth = depth.astype(np.float32, copy=False)
         flat = np.ascontiguousarray(depth).ravel()
         best = self.nearest_squared(flat)
-        hit = np.isfinite(best)
-        ranges = np.where(hit, np.sqrt(best), self._empty)
+        seen = self.coverage.seen(self._valid_centres(depth))
+        empty = np.where(seen, np.float32(np.inf), np.float32(np.nan))
+        ranges = np.where(np.isfinite(best), np.sqrt(best), empty)
         ranges = to_rep117(ranges, self.range_min, self.range_max)
         grid = self.grid
         return Scan(
