@@ -54,6 +54,10 @@ CODE_LIMIT = 65536  # one past the largest 16UC1 depth code
 SCORE_TOO_CLOSE = np.float32(3.0e38)
 SCORE_BEYOND = np.float32(3.2e38)
 SCORE_NOTHING = np.float32(np.inf)
+FALLBACK_SCORES = np.array(
+    [SCORE_NOTHING, SCORE_BEYOND, SCORE_TOO_CLOSE, SCORE_TOO_CLOSE], dtype=np.float32
+)
+FALLBACK_SCORES.setflags(write=False)
 LARGEST_RANGE = 1.0e30  # keeps every in-range value below the outcome scores
 
 
@@ -73,8 +77,9 @@ class RowPlan:
     range_min: np.float32
     range_max: np.float32
     max_value_range: FloatArray  # (1 or rows, width) largest range reported as a value
-    lowest_code: IntArray  # (width,) smallest 16UC1 code with r >= range_min; 65536 if none
-    lowest_code16: npt.NDArray[np.uint16]  # the same, capped to fit uint16
+    lowest_code16: npt.NDArray[np.uint16]  # (width,) smallest code with r >= range_min, capped
+    value_span: IntArray  # (width,) highest - lowest in-range code; negative if none is in range
+    close_below: IntArray  # (width,) lowest in-range code - 1: valid codes under it are too close
     highest_code: IntArray  # (width,) largest 16UC1 code with r <= range_max
     floor_code: npt.NDArray[np.uint16] | None  # (rows, width) largest code neither beyond nor floor
     pixel_slots: IntArray | None  # (rows, width) when rays bend along a column (distortion)
@@ -113,16 +118,11 @@ class RowPlan:
             kept = np.where(beyond, np.uint16(0), band)
         else:
             kept = band
-            has_beyond = np.asarray(kept.max(axis=0).astype(np.int64) > self.highest_code)
-        offset = (kept - self.lowest_code16).min(axis=0).astype(np.int64)
-        nearest = offset + self.lowest_code
-        has_value = (
-            (offset <= CODE_LIMIT - 1 - self.lowest_code16)
-            & (nearest <= self.highest_code)
-            & (self.lowest_code < CODE_LIMIT)
-        )
-        smallest_valid = (kept - np.uint16(1)).min(axis=0).astype(np.int64) + 1
-        has_close = smallest_valid < self.lowest_code
+            has_beyond = np.asarray(kept.max(axis=0) > self.highest_code)
+        offset = (kept - self.lowest_code16).min(axis=0)
+        has_value = np.asarray(offset <= self.value_span)
+        has_close = np.asarray((kept - np.uint16(1)).min(axis=0) < self.close_below)
+        nearest = offset + self.lowest_code16  # wraps back to the code itself
         values = (nearest.astype(np.float32) * MILLIMETRE) * self.range_per_depth
         return _scores(values, has_value, has_close, has_beyond)
 
@@ -184,20 +184,23 @@ def _classify(
 def _scores(
     values: FloatArray, has_value: BoolArray, has_close: BoolArray, has_beyond: BoolArray
 ) -> FloatArray:
-    scores = np.where(
-        has_value,
-        values,
-        np.where(has_close, SCORE_TOO_CLOSE, np.where(has_beyond, SCORE_BEYOND, SCORE_NOTHING)),
-    )
-    return scores.astype(np.float32, copy=False)
+    # Index 2 * close + beyond into the outcome without a value: close wins over beyond.
+    fallback = FALLBACK_SCORES[(has_close << 1) | has_beyond]
+    scores: FloatArray = np.where(has_value, values, fallback)
+    return scores
 
 
 def _decode(scores: FloatArray) -> FloatArray:
-    ranges = np.where(scores == SCORE_TOO_CLOSE, np.float32(-np.inf), scores)
-    ranges = np.where(scores == SCORE_BEYOND, np.float32(np.inf), ranges)
-    return np.where(scores == SCORE_NOTHING, np.float32(np.nan), ranges).astype(
-        np.float32, copy=False
-    )
+    ranges: FloatArray = scores.copy()
+    outcome = scores >= SCORE_TOO_CLOSE
+    if outcome.any():
+        codes = scores[outcome]
+        ranges[outcome] = np.where(
+            codes == SCORE_TOO_CLOSE,
+            np.float32(-np.inf),
+            np.where(codes == SCORE_BEYOND, np.float32(np.inf), np.float32(np.nan)),
+        )
+    return ranges
 
 
 def _column_angles(x_n: Float64Array) -> Float64Array:
@@ -330,8 +333,9 @@ def row_plan(
         range_min=range_min32,
         range_max=range_max32,
         max_value_range=max_value_range.astype(np.float32),
-        lowest_code=lowest,
         lowest_code16=np.minimum(lowest, CODE_LIMIT - 1).astype(np.uint16),
+        value_span=highest - lowest,
+        close_below=lowest - 1,
         highest_code=highest,
         floor_code=floor_code,
         pixel_slots=pixel_slots,
@@ -532,13 +536,9 @@ def d2l_band(camera: CameraModel, scan_height: int) -> tuple[int, int]:
     if half > camera.cy or half > camera.height - camera.cy:
         msg = f'scan_height ( {scan_height} pixels) is too large for the image height.'
         raise ConfigError(msg)
+    # With 1 <= scan_height <= height (checked before), the check above keeps the band
+    # inside the image; a taller band would pass it and upstream would read past the buffer.
     offset = int(camera.cy - scan_height / 2.0)
-    if offset < 0 or offset + scan_height > camera.height:
-        msg = (
-            f'scan_height {scan_height} around cy={camera.cy} reaches outside the '
-            f'{camera.height}-row image (depthimage_to_laserscan would read past the buffer)'
-        )
-        raise ConfigError(msg)
     return offset, offset + scan_height
 
 
