@@ -84,6 +84,49 @@ def bag(  # noqa: PLR0917 - a typer command takes its options as parameters
     Console().print(report.table())
 
 
+@app.command()
+def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
+    out: Annotated[Path, typer.Option('--out', help='bag to write: NAME.mcap file or folder')],
+    world: Annotated[str, typer.Option(help='room | bookshelf | barricade | clutter')] = (
+        'bookshelf'
+    ),
+    path: Annotated[str, typer.Option(help='scripted drive: straight | rotate | lap')] = 'straight',
+    duration: Annotated[float, typer.Option(help='simulated seconds')] = 20.0,
+    seed: Annotated[int, typer.Option(help='world layout and sensor noise seed')] = 0,
+    lidar: Annotated[str, typer.Option(help='rplidar-a2 | hokuyo-ust10lx')] = 'rplidar-a2',
+    camera: Annotated[str, typer.Option(help='depth camera profile')] = 'd435',
+    resolution: Annotated[str, typer.Option(help='depth image WIDTHxHEIGHT')] = '640x480',
+    depth_rate: Annotated[
+        float | None, typer.Option(help='depth images per second (default: the camera rate)')
+    ] = None,
+    no_noise: Annotated[bool, typer.Option('--no-noise', help='perfect sensors')] = False,
+    depth_backend: Annotated[
+        str, typer.Option(help='multiray (no GL) | renderer (MUJOCO_GL=egl or osmesa)')
+    ] = 'multiray',
+    snapshot: Annotated[
+        Path | None, typer.Option(help='PNG of the world from above with the first scans')
+    ] = None,
+) -> None:
+    """Simulate a robot in an indoor world and record its sensors and ground truth as a bag."""
+    from scanfuse.sim.cli import run_simulate  # noqa: PLC0415
+
+    run_simulate(
+        out=out,
+        world=world,
+        path=path,
+        duration=duration,
+        seed=seed,
+        lidar=lidar,
+        camera=camera,
+        resolution=resolution,
+        depth_rate=depth_rate,
+        noise=not no_noise,
+        depth_backend=depth_backend,
+        snapshot=snapshot,
+        console=Console(),
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')

@@ -1,0 +1,67 @@
+"""MuJoCo simulation of the paper's indoor worlds: robot, sensors, ground truth, bags."""
+
+from scanfuse.sim.drive import PATHS, Lap, Rotate, Straight, scripted_path
+from scanfuse.sim.errors import SimError
+from scanfuse.sim.record import RecordSummary, record, static_transforms
+from scanfuse.sim.robot import RobotSpec, WheelOdometry
+from scanfuse.sim.sensors import (
+    CAMERAS,
+    LIDARS,
+    CameraProfile,
+    DepthBackend,
+    DepthNoise,
+    LidarNoise,
+    LidarProfile,
+)
+from scanfuse.sim.simulation import (
+    Contact,
+    Controller,
+    DepthFrame,
+    LidarFrame,
+    Observation,
+    SimConfig,
+    Simulation,
+    StateSample,
+    Trace,
+)
+from scanfuse.sim.snapshot import save_snapshot
+from scanfuse.sim.truth import TruthScanner
+from scanfuse.sim.worlds import KINDS, WORLDS, Obstacle, Pose2D, World, make_world
+
+__all__ = [
+    'CAMERAS',
+    'KINDS',
+    'LIDARS',
+    'PATHS',
+    'WORLDS',
+    'CameraProfile',
+    'Contact',
+    'Controller',
+    'DepthBackend',
+    'DepthFrame',
+    'DepthNoise',
+    'Lap',
+    'LidarFrame',
+    'LidarNoise',
+    'LidarProfile',
+    'Observation',
+    'Obstacle',
+    'Pose2D',
+    'RecordSummary',
+    'RobotSpec',
+    'Rotate',
+    'SimConfig',
+    'SimError',
+    'Simulation',
+    'StateSample',
+    'Straight',
+    'Trace',
+    'TruthScanner',
+    'WheelOdometry',
+    'World',
+    'make_world',
+    'record',
+    'save_snapshot',
+    'scripted_path',
+    'static_transforms',
+]

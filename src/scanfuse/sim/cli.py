@@ -1,0 +1,102 @@
+"""The body of `scanfuse simulate`: options to a `SimConfig`, a progress bar, a summary table."""
+
+from __future__ import annotations
+
+import re
+from typing import TYPE_CHECKING
+
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from scanfuse.sim.drive import scripted_path
+from scanfuse.sim.errors import SimError
+from scanfuse.sim.record import RecordSummary, record
+from scanfuse.sim.sensors import DepthBackend
+from scanfuse.sim.simulation import SimConfig
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rich.console import Console
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """'640x480' -> (640, 480)."""
+    match = re.fullmatch(r'\s*(\d+)\s*[xX]\s*(\d+)\s*', text)
+    if match is None:
+        msg = f'resolution {text!r} is not WIDTHxHEIGHT, e.g. 640x480'
+        raise SimError(msg)
+    return int(match[1]), int(match[2])
+
+
+def parse_backend(text: str) -> DepthBackend:
+    try:
+        return DepthBackend(text)
+    except ValueError:
+        choices = ', '.join(backend.value for backend in DepthBackend)
+        msg = f'unknown depth backend {text!r}; choose one of {choices}'
+        raise SimError(msg) from None
+
+
+def run_simulate(
+    *,
+    out: Path,
+    world: str,
+    path: str,
+    duration: float,
+    seed: int,
+    lidar: str,
+    camera: str,
+    resolution: str,
+    depth_rate: float | None,
+    noise: bool,
+    depth_backend: str,
+    snapshot: Path | None,
+    console: Console,
+) -> RecordSummary:
+    config = SimConfig(
+        world=world,
+        seed=seed,
+        lidar=lidar,
+        camera=camera,
+        resolution=parse_resolution(resolution),
+        depth_rate=depth_rate,
+        noise=noise,
+        depth_backend=parse_backend(depth_backend),
+    )
+    controller = scripted_path(path)
+    columns = (
+        TextColumn('[bold]simulating[/] {task.description}'),
+        BarColumn(),
+        TextColumn('{task.completed:.1f}/{task.total:.0f} s'),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=True) as progress:
+        task = progress.add_task(f'{world} / {path}', total=duration)
+        summary = record(
+            config,
+            controller,
+            duration,
+            out,
+            snapshot=snapshot,
+            progress=lambda now: progress.update(task, completed=now),
+        )
+    console.print(summary_table(summary, snapshot))
+    return summary
+
+
+def summary_table(summary: RecordSummary, snapshot: Path | None) -> Table:
+    table = Table(title=f'recorded {summary.path}')
+    table.add_column('topic / quantity')
+    table.add_column('value', justify='right')
+    for topic, count in sorted(summary.counts.items()):
+        table.add_row(topic, f'{count} messages')
+    table.add_row('simulated time', f'{summary.sim_time:.2f} s')
+    table.add_row('wall time', f'{summary.wall_time:.2f} s')
+    table.add_row('real-time factor', f'{summary.real_time_factor:.2f}')
+    table.add_row('robot-obstacle contacts', str(summary.contacts))
+    table.add_row('final odometry error', f'{summary.final_odometry_error:.3f} m')
+    if snapshot is not None:
+        table.add_row('snapshot', str(snapshot))
+    return table

@@ -1,0 +1,494 @@
+"""The simulation: a world, the robot, its sensors, ground truth, and the driving loop."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import mujoco
+import numpy as np
+
+from scanfuse.config import FusionConfig
+from scanfuse.scan import Scan
+from scanfuse.sim.errors import SimError
+from scanfuse.sim.robot import ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
+from scanfuse.sim.sensors import (
+    LASER_FRAME,
+    DepthBackend,
+    DepthNoise,
+    LidarNoise,
+    RayFan,
+    camera_profile,
+    depth_image,
+    lidar_directions,
+    lidar_profile,
+    lidar_ranges,
+    optical_rays,
+)
+from scanfuse.sim.truth import TruthScanner
+from scanfuse.sim.worlds import Pose2D, World, make_world
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from scanfuse.camera import CameraModel
+
+    Matrix = npt.NDArray[np.float64]
+
+NANOSECONDS = 1_000_000_000
+# Stamps count from this instant (2023-11-14T22:13:20Z) rather than zero, which
+# ROS tools treat as "latest"; the run is still fully deterministic.
+EPOCH_NS = 1_700_000_000 * NANOSECONDS
+SETTLE_TIME = 0.3
+_DEFAULTS = FusionConfig()
+# camera_link (x forward, z up) -> optical frame (z forward, x right, y down), REP-103.
+LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+CAMERA_NAME = 'depth_camera'
+
+
+def pitch_matrix(pitch: float) -> Matrix:
+    """Rotation about +y by `pitch`: positive turns x towards -z (looks down)."""
+    c, s = math.cos(pitch), math.sin(pitch)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def yaw_matrix(yaw: float) -> Matrix:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that defines one simulated run apart from the driving."""
+
+    world: str = 'bookshelf'
+    seed: int = 0
+    lidar: str = 'rplidar-a2'
+    camera: str = 'd435'
+    resolution: tuple[int, int] = (640, 480)
+    depth_rate: float | None = None  # Hz; None: the camera profile's rate
+    noise: bool = True
+    lidar_noise: LidarNoise = field(default_factory=LidarNoise)
+    depth_noise: DepthNoise = field(default_factory=DepthNoise)
+    robot: RobotSpec = field(default_factory=RobotSpec)
+    depth_backend: DepthBackend = DepthBackend.MULTIRAY
+    timestep: float = 0.002
+    state_rate: float = 50.0  # odometry, true pose and contact checks, Hz
+    min_obstacle_height: float = _DEFAULTS.min_obstacle_height
+    max_obstacle_height: float = _DEFAULTS.max_obstacle_height
+
+    def __post_init__(self) -> None:
+        if self.depth_rate is not None and not 0.0 < self.depth_rate <= 1000.0:
+            msg = f'depth_rate {self.depth_rate} Hz must be in (0, 1000]; 0 would record no images'
+            raise SimError(msg)
+        if not 0.0 < self.timestep <= 0.01:
+            msg = f'timestep {self.timestep} s must be in (0, 0.01] for stable wheel contacts'
+            raise SimError(msg)
+
+
+@dataclass(frozen=True)
+class LidarFrame:
+    """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose."""
+
+    stamp_ns: int
+    scan: Scan
+    truth: Scan
+    pose: Pose2D  # base_link in the world
+    origin: tuple[float, float, float]  # LiDAR origin in the world
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    stamp_ns: int
+    depth: npt.NDArray[np.uint16]
+    camera: CameraModel
+
+
+@dataclass(frozen=True)
+class StateSample:
+    """Wheel odometry (odom frame) and the true pose (world frame) at one instant."""
+
+    stamp_ns: int
+    odometry: Pose2D
+    v: float
+    omega: float
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float]  # quaternion x, y, z, w
+
+    @property
+    def true_pose(self) -> Pose2D:
+        x, y, z, w = self.orientation
+        return Pose2D(
+            self.position[0],
+            self.position[1],
+            math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)),
+        )
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact between a robot geom and an obstacle geom."""
+
+    stamp_ns: int
+    position: tuple[float, float, float]
+    robot_geom: str
+    obstacle_geom: str
+    kind: str
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a controller sees at each LiDAR scan; fuse `scan` and `depth` with a FusionPipeline."""
+
+    time: float
+    scan: Scan
+    depth: npt.NDArray[np.uint16] | None
+    camera: CameraModel
+    odometry: Pose2D
+
+
+Controller = Callable[[Observation], tuple[float, float]]
+
+
+class Sink(Protocol):
+    """Receives everything the simulation produces, in time order."""
+
+    def on_lidar(self, frame: LidarFrame) -> None: ...
+    def on_depth(self, frame: DepthFrame) -> None: ...
+    def on_state(self, sample: StateSample) -> None: ...
+    def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None: ...
+
+
+@dataclass
+class Trace:
+    """A sink that keeps everything in memory (tests, evaluation)."""
+
+    lidar: list[LidarFrame] = field(default_factory=list)
+    depth: list[DepthFrame] = field(default_factory=list)
+    states: list[StateSample] = field(default_factory=list)
+    contacts: list[Contact] = field(default_factory=list)
+
+    def on_lidar(self, frame: LidarFrame) -> None:
+        self.lidar.append(frame)
+
+    def on_depth(self, frame: DepthFrame) -> None:
+        self.depth.append(frame)
+
+    def on_state(self, sample: StateSample) -> None:
+        self.states.append(sample)
+
+    def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
+        del stamp_ns  # every contact carries its own stamp
+        self.contacts.extend(contacts)
+
+
+def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
+    """The whole scene: options, assets, the world's geoms, the robot and its actuators."""
+    width, height = config.resolution
+    camera = camera_profile(config.camera)
+    pitch = robot.camera_pitch
+    # MuJoCo cameras look along -z with +y up: x = -y_link, y = z_link, both pitched.
+    x_axis = (0.0, -1.0, 0.0)
+    y_axis = (math.sin(pitch), 0.0, math.cos(pitch))
+    camera_xml = (
+        f'<camera name="{CAMERA_NAME}" pos="{robot.camera_x:.6g} 0 {robot.camera_height:.6g}" '
+        f'xyaxes="{" ".join(f"{v:.9g}" for v in (*x_axis, *y_axis))}" '
+        f'fovy="{math.degrees(camera.vertical_fov):.9g}"/>'
+    )
+    # The camera belongs to the chassis body, not to the first wheel.
+    body = robot.mjcf(world.start)
+    body = body[: -len('</body>')] + camera_xml + '</body>'
+    return f"""<mujoco model="scanfuse_{world.name}">
+<compiler angle="radian"/>
+<option timestep="{config.timestep:.6g}" integrator="implicitfast"/>
+<visual><global offwidth="{width}" offheight="{height}"/><map znear="0.01" zfar="50"/></visual>
+<asset>{''.join(world.assets)}</asset>
+<worldbody>
+<light pos="0 0 4" dir="0 0 -1" directional="true"/>
+{world.worldbody_mjcf()}
+{body}
+</worldbody>
+<actuator>{robot.actuators_mjcf()}</actuator>
+</mujoco>"""
+
+
+class RendererDepth:
+    """Depth from `mujoco.Renderer` (OpenGL): needs MUJOCO_GL=egl or osmesa set before import."""
+
+    def __init__(self, model: mujoco.MjModel, camera: CameraModel) -> None:
+        try:
+            self._renderer = mujoco.Renderer(model, camera.height, camera.width)
+        except (mujoco.FatalError, AttributeError, RuntimeError, ImportError) as err:
+            msg = (
+                f'depth backend "renderer" needs OpenGL ({err}); set MUJOCO_GL=egl or '
+                'MUJOCO_GL=osmesa before starting, or use the "multiray" backend'
+            )
+            raise SimError(msg) from err
+        self._renderer.enable_depth_rendering()
+        self._option = mujoco.MjvOption()
+        self._option.geomgroup[ROBOT_GEOM_GROUP] = 0
+        self._far = 0.999 * model.vis.map.zfar * model.stat.extent
+
+    def depth(self, data: mujoco.MjData) -> npt.NDArray[np.float64]:
+        self._renderer.update_scene(data, camera=CAMERA_NAME, scene_option=self._option)
+        depth: npt.NDArray[np.float64] = self._renderer.render().astype(np.float64)
+        depth[depth >= self._far] = np.nan
+        return depth
+
+    def close(self) -> None:
+        self._renderer.close()
+
+
+class Simulation:
+    """A world with the robot in it; steps physics and produces sensor frames and truth.
+
+    `run` drives it for a duration with a controller and hands every frame to a sink.
+    """
+
+    def __init__(self, config: SimConfig | None = None, world: World | None = None) -> None:
+        self.config = config = config or SimConfig()
+        self.world = world or make_world(config.world, config.seed)
+        self.robot = config.robot
+        self.lidar_profile = lidar_profile(config.lidar)
+        self.camera_profile = camera_profile(config.camera)
+        self.camera = self.camera_profile.model(*config.resolution)
+        self.mjcf = build_mjcf(self.world, self.robot, config)
+        try:
+            self.model = mujoco.MjModel.from_xml_string(self.mjcf)
+        except ValueError as err:
+            msg = f'MuJoCo rejected the generated {self.world.name!r} world: {err}'
+            raise SimError(msg) from err
+        self.data = mujoco.MjData(self.model)
+        self._body = self.model.body(ROBOT_BODY).id
+        self._wheels = [self.model.joint(f'{side}_wheel').qposadr[0] for side in ('left', 'right')]
+        self._geom_names = [self.model.geom(i).name for i in range(self.model.ngeom)]
+        self._robot_geoms = self.model.geom_group == ROBOT_GEOM_GROUP
+        self._floor = self.model.geom('floor').id
+        self._kinds = self.world.kinds()
+        self._lidar_fan = RayFan(
+            lidar_directions(self.lidar_profile), cutoff=self.lidar_profile.range_max + 1.0
+        )
+        rays, self._z_of_ray = optical_rays(self.camera)
+        self._depth_fan = RayFan(
+            rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
+        )
+        self._renderer = (
+            RendererDepth(self.model, self.camera)
+            if config.depth_backend is DepthBackend.RENDERER
+            else None
+        )
+        self.truth = TruthScanner(
+            self.world.obstacles,
+            self.lidar_profile.grid,
+            min_obstacle_height=config.min_obstacle_height,
+            max_obstacle_height=config.max_obstacle_height,
+            range_max=self.lidar_profile.range_max,
+        )
+        lidar_seed, depth_seed = np.random.SeedSequence(config.seed).spawn(2)
+        self._lidar_rng = np.random.default_rng(lidar_seed)
+        self._depth_rng = np.random.default_rng(depth_seed)
+        self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
+        self._settle()
+
+    # ------------------------------------------------------------ state
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def stamp_ns(self) -> int:
+        return EPOCH_NS + round(float(self.data.time) * NANOSECONDS)
+
+    def geom_kind(self, geom_id: int) -> str:
+        """The kind label of a geom ('floor', '' for the robot's own geoms)."""
+        return self._kinds.get(self._geom_names[geom_id], 'floor' if geom_id == self._floor else '')
+
+    def base_pose(self) -> tuple[Matrix, Matrix]:
+        """Position and rotation matrix of base_link in the world."""
+        return self.data.xpos[self._body].copy(), self.data.xmat[self._body].reshape(3, 3).copy()
+
+    def true_pose(self) -> Pose2D:
+        position, rotation = self.base_pose()
+        return Pose2D(
+            float(position[0]), float(position[1]), math.atan2(rotation[1, 0], rotation[0, 0])
+        )
+
+    def lidar_pose(self) -> tuple[Matrix, Matrix]:
+        position, rotation = self.base_pose()
+        offset = np.array([self.robot.lidar_x, 0.0, self.robot.lidar_height])
+        return position + rotation @ offset, rotation @ yaw_matrix(self.robot.lidar_yaw)
+
+    def camera_pose(self) -> tuple[Matrix, Matrix]:
+        """Optical-frame origin and rotation (optical -> world)."""
+        position, rotation = self.base_pose()
+        offset = np.array([self.robot.camera_x, 0.0, self.robot.camera_height])
+        link = rotation @ pitch_matrix(self.robot.camera_pitch)
+        return position + rotation @ offset, link @ LINK_TO_OPTICAL
+
+    def set_command(self, v: float, omega: float) -> None:
+        """Body speed (m/s) and turn rate (rad/s), turned into wheel speed set points."""
+        left, right = self.robot.wheel_speeds(v, omega)
+        self.data.ctrl[:] = (left, right)
+
+    def place(self, pose: Pose2D) -> None:
+        """Put the robot at `pose` (at rest) and restart its odometry there."""
+        self.data.qpos[0:3] = (pose.x, pose.y, self.data.qpos[2])
+        self.data.qpos[3:7] = (math.cos(pose.yaw / 2), 0.0, 0.0, math.sin(pose.yaw / 2))
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    # ------------------------------------------------------------ sensing
+
+    def lidar_frame(self) -> LidarFrame:
+        origin, rotation = self.lidar_pose()
+        distances, _ = self._lidar_fan.cast(self.model, self.data, origin, rotation)
+        profile = self.lidar_profile
+        noise = self.config.lidar_noise if self.config.noise else None
+        ranges = lidar_ranges(distances, profile, noise, self._lidar_rng)
+        stamp = self.stamp_ns
+        scan = Scan(
+            angle_min=profile.angle_min,
+            angle_max=profile.angle_max,
+            angle_increment=profile.angle_increment,
+            range_min=profile.range_min,
+            range_max=profile.range_max,
+            ranges=ranges,
+            scan_time=1.0 / profile.rate,
+            frame_id=LASER_FRAME,
+            stamp_ns=stamp,
+        )
+        heading = math.atan2(rotation[1, 0], rotation[0, 0])
+        truth = scan.with_ranges(self.truth.scan(float(origin[0]), float(origin[1]), heading))
+        return LidarFrame(
+            stamp,
+            scan,
+            truth,
+            self.true_pose(),
+            (float(origin[0]), float(origin[1]), float(origin[2])),
+        )
+
+    def true_depth(self) -> npt.NDArray[np.float64]:
+        """Depth along the optical axis of every pixel, metres, NaN where nothing is hit."""
+        if self._renderer is not None:
+            return self._renderer.depth(self.data)
+        origin, rotation = self.camera_pose()
+        distances, _ = self._depth_fan.cast(self.model, self.data, origin, rotation)
+        return distances.reshape(self.camera.height, self.camera.width) * self._z_of_ray
+
+    def depth_frame(self) -> DepthFrame:
+        noise = self.config.depth_noise if self.config.noise else None
+        image = depth_image(self.true_depth(), self.camera_profile, noise, self._depth_rng)
+        return DepthFrame(self.stamp_ns, image, self.camera)
+
+    def contacts(self) -> list[Contact]:
+        """Contacts between the robot and anything but the floor, now."""
+        found = []
+        stamp = self.stamp_ns
+        for index in range(self.data.ncon):
+            contact = self.data.contact[index]
+            pair = (int(contact.geom1), int(contact.geom2))
+            robot = [g for g in pair if self._robot_geoms[g]]
+            other = [g for g in pair if not self._robot_geoms[g] and g != self._floor]
+            if robot and other:
+                found.append(
+                    Contact(
+                        stamp,
+                        (float(contact.pos[0]), float(contact.pos[1]), float(contact.pos[2])),
+                        self._geom_names[robot[0]],
+                        self._geom_names[other[0]],
+                        self.geom_kind(other[0]),
+                    )
+                )
+        return found
+
+    def state(self) -> StateSample:
+        position = self.data.xpos[self._body]
+        w, x, y, z = (float(value) for value in self.data.xquat[self._body])
+        return StateSample(
+            self.stamp_ns,
+            self.odometry.pose,
+            self.odometry.v,
+            self.odometry.omega,
+            (float(position[0]), float(position[1]), float(position[2])),
+            (x, y, z, w),
+        )
+
+    # ------------------------------------------------------------ time
+
+    def _settle(self) -> None:
+        """Let the robot sink onto its wheels, then restart the clock and the odometry."""
+        mujoco.mj_forward(self.model, self.data)
+        mujoco.mj_step(self.model, self.data, nstep=round(SETTLE_TIME / self.config.timestep))
+        self.data.time = 0.0
+        self.data.qvel[:] = 0.0
+        self._update_odometry(0.0)
+
+    def _update_odometry(self, dt: float) -> None:
+        self.odometry.update(
+            float(self.data.qpos[self._wheels[0]]), float(self.data.qpos[self._wheels[1]]), dt
+        )
+
+    def advance(self, until: float) -> None:
+        """Step the physics to time `until` (seconds), integrating odometry."""
+        steps = math.ceil((until - self.data.time) / self.config.timestep - 1e-6)
+        if steps > 0:
+            start = self.data.time
+            mujoco.mj_step(self.model, self.data, nstep=steps)
+            self._update_odometry(self.data.time - start)
+
+    def run(
+        self,
+        duration: float,
+        controller: Controller,
+        sink: Sink,
+        progress: Callable[[float], None] | None = None,
+    ) -> None:
+        """Drive for `duration` seconds; the controller is asked for (v, omega) at every scan."""
+        if duration <= 0.0:
+            msg = f'duration must be positive, got {duration} s'
+            raise SimError(msg)
+        periods = {
+            'lidar': 1.0 / self.lidar_profile.rate,
+            'depth': 1.0 / (self.config.depth_rate or self.camera_profile.rate),
+            'state': 1.0 / self.config.state_rate,
+        }
+        due = dict.fromkeys(periods, self.time)
+        last_depth: DepthFrame | None = None
+        end = self.time + duration
+        while True:
+            now = min(due.values())
+            if now > end + 1e-9:
+                break
+            self.advance(now)
+            for name in ('state', 'depth', 'lidar'):
+                if due[name] > now + 1e-9:
+                    continue
+                due[name] += periods[name]
+                if name == 'state':
+                    sink.on_state(self.state())
+                    contacts = self.contacts()
+                    if contacts:
+                        sink.on_contacts(self.stamp_ns, contacts)
+                elif name == 'depth':
+                    last_depth = self.depth_frame()
+                    sink.on_depth(last_depth)
+                else:
+                    frame = self.lidar_frame()
+                    sink.on_lidar(frame)
+                    observation = Observation(
+                        self.time,
+                        frame.scan,
+                        None if last_depth is None else last_depth.depth,
+                        self.camera,
+                        self.odometry.pose,
+                    )
+                    self.set_command(*controller(observation))
+            if progress is not None:
+                progress(self.time)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()

@@ -1,0 +1,458 @@
+"""Indoor worlds of the paper as MJCF strings, with every obstacle's true geometry.
+
+Each world is generated from parameters and a seed. Every obstacle is a vertical
+prism: a footprint polygon (world frame, metres, counter-clockwise) extruded over
+a height span [z_min, z_max] above the floor (z = 0), and carries a `kind` label
+so that the evaluation can split its metrics by obstacle type. The MJCF geoms are
+built from the same numbers, so the ground truth and the simulated sensors see
+one geometry.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from scanfuse.sim.errors import SimError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import numpy.typing as npt
+
+    Polygon = npt.NDArray[np.float64]
+
+KINDS = (
+    'wall',
+    'shelf_board',
+    'shelf_side',
+    'barricade_base',
+    'barricade_top',
+    'chair_leg',
+    'chair_seat',
+    'lamp_base',
+    'lamp_pole',
+    'low_box',
+    'cable_tray',
+)
+# A circle's footprint polygon may lie inside the true circle by at most this
+# much (the sagitta of one edge), metres: far below the sensors' 1 mm resolution.
+MAX_SAGITTA = 2e-4
+WALL_THICKNESS = 0.1
+WALL_HEIGHT = 1.2
+BOARD_THICKNESS = 0.018
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One MuJoCo geom of the world with its true shape.
+
+    `footprint` is the (N, 2) polygon of the geom seen from above (world frame,
+    counter-clockwise); the geom fills it between heights `z_min` and `z_max`.
+    """
+
+    name: str
+    kind: str
+    footprint: Polygon
+    z_min: float
+    z_max: float
+    mjcf: str = field(repr=False)
+
+    def overlaps_slab(self, low: float, high: float) -> bool:
+        """Whether any part of the obstacle lies at a height inside [low, high]."""
+        return self.z_min <= high and self.z_max >= low
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A planar pose: position (metres) and heading (radians, counter-clockwise from +x)."""
+
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class World:
+    """A generated world: its obstacles, MJCF assets, robot start pose and extent."""
+
+    name: str
+    seed: int
+    obstacles: tuple[Obstacle, ...]
+    start: Pose2D
+    bounds: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max of the room inside
+    assets: tuple[str, ...] = ()
+
+    def kind_of(self, geom_name: str) -> str:
+        """The kind label of an obstacle geom ('floor' for the floor, '' for robot parts)."""
+        for obstacle in self.obstacles:
+            if obstacle.name == geom_name:
+                return obstacle.kind
+        return 'floor' if geom_name == 'floor' else ''
+
+    def kinds(self) -> dict[str, str]:
+        """Geom name -> kind, for every obstacle."""
+        return {obstacle.name: obstacle.kind for obstacle in self.obstacles}
+
+    def worldbody_mjcf(self) -> str:
+        """The floor and every obstacle geom, to be placed in `<worldbody>`."""
+        extent = 2.0 + max(abs(value) for value in self.bounds)
+        floor = (
+            f'<geom name="floor" type="plane" size="{extent:.3f} {extent:.3f} 0.1" '
+            'rgba="0.8 0.8 0.8 1" friction="1 0.005 0.0001"/>'
+        )
+        return '\n'.join([floor, *(obstacle.mjcf for obstacle in self.obstacles)])
+
+
+# ---------------------------------------------------------------- shapes
+
+
+def _fmt(*values: float) -> str:
+    return ' '.join(f'{value:.6g}' for value in values)
+
+
+def rectangle(cx: float, cy: float, half_x: float, half_y: float, yaw: float = 0.0) -> Polygon:
+    """Counter-clockwise corners of a rectangle centred at (cx, cy) turned by `yaw`."""
+    corners = np.array([[-half_x, -half_y], [half_x, -half_y], [half_x, half_y], [-half_x, half_y]])
+    c, s = math.cos(yaw), math.sin(yaw)
+    turned: Polygon = corners @ np.array([[c, s], [-s, c]]) + np.array([cx, cy])
+    return turned
+
+
+def circle(cx: float, cy: float, radius: float) -> Polygon:
+    """A polygon inscribed in the circle, fine enough that no point lies MAX_SAGITTA inside."""
+    half_angle = math.acos(max(-1.0, 1.0 - MAX_SAGITTA / radius))
+    count = max(8, math.ceil(math.pi / half_angle))
+    angles = np.linspace(0.0, 2.0 * math.pi, count, endpoint=False)
+    return np.column_stack([cx + radius * np.cos(angles), cy + radius * np.sin(angles)])
+
+
+def regular_polygon(cx: float, cy: float, radius: float, sides: int, phase: float) -> Polygon:
+    """Vertices of a regular polygon of circumradius `radius`, first vertex at angle `phase`."""
+    angles = phase + np.arange(sides) * (2.0 * math.pi / sides)
+    return np.column_stack([cx + radius * np.cos(angles), cy + radius * np.sin(angles)])
+
+
+def box(
+    name: str,
+    kind: str,
+    centre: tuple[float, float],
+    half: tuple[float, float],
+    z: tuple[float, float],
+    *,
+    yaw: float = 0.0,
+    rgba: str = '0.6 0.5 0.4 1',
+) -> Obstacle:
+    z_min, z_max = z
+    geom = (
+        f'<geom name="{name}" type="box" pos="{_fmt(centre[0], centre[1], (z_min + z_max) / 2)}" '
+        f'size="{_fmt(half[0], half[1], (z_max - z_min) / 2)}" euler="0 0 {yaw:.6g}" '
+        f'rgba="{rgba}"/>'
+    )
+    footprint = rectangle(centre[0], centre[1], half[0], half[1], yaw)
+    return Obstacle(name, kind, footprint, z_min, z_max, geom)
+
+
+def cylinder(
+    name: str,
+    kind: str,
+    centre: tuple[float, float],
+    radius: float,
+    z: tuple[float, float],
+    *,
+    rgba: str = '0.4 0.4 0.5 1',
+) -> Obstacle:
+    z_min, z_max = z
+    geom = (
+        f'<geom name="{name}" type="cylinder" '
+        f'pos="{_fmt(centre[0], centre[1], (z_min + z_max) / 2)}" '
+        f'size="{_fmt(radius, (z_max - z_min) / 2)}" rgba="{rgba}"/>'
+    )
+    return Obstacle(name, kind, circle(centre[0], centre[1], radius), z_min, z_max, geom)
+
+
+def prism(
+    name: str, kind: str, footprint: Polygon, z: tuple[float, float], rgba: str = '0.7 0.3 0.2 1'
+) -> tuple[Obstacle, str]:
+    """A convex polygonal prism as a MuJoCo mesh; returns the obstacle and its mesh asset."""
+    z_min, z_max = z
+    centre = footprint.mean(axis=0)
+    local = footprint - centre
+    vertices = [(*point, height) for height in (z_min, z_max) for point in local]
+    asset = f'<mesh name="{name}_mesh" vertex="{_fmt(*np.ravel(vertices))}"/>'
+    geom = (
+        f'<geom name="{name}" type="mesh" mesh="{name}_mesh" '
+        f'pos="{_fmt(centre[0], centre[1], 0.0)}" rgba="{rgba}"/>'
+    )
+    return Obstacle(name, kind, np.array(footprint, dtype=np.float64), z_min, z_max, geom), asset
+
+
+def room_walls(
+    bounds: tuple[float, float, float, float],
+    door: tuple[float, float] | None = None,
+) -> list[Obstacle]:
+    """Four walls whose inner faces are `bounds`; `door` = (x centre, width) cuts the +y wall."""
+    x_min, x_max, y_min, y_max = bounds
+    t = WALL_THICKNESS / 2
+    z = (0.0, WALL_HEIGHT)
+    rgba = '0.9 0.9 0.85 1'
+    walls = [
+        box(
+            'wall_south',
+            'wall',
+            ((x_min + x_max) / 2, y_min - t),
+            ((x_max - x_min) / 2 + 2 * t, t),
+            z,
+            rgba=rgba,
+        ),
+        box(
+            'wall_west',
+            'wall',
+            (x_min - t, (y_min + y_max) / 2),
+            (t, (y_max - y_min) / 2),
+            z,
+            rgba=rgba,
+        ),
+        box(
+            'wall_east',
+            'wall',
+            (x_max + t, (y_min + y_max) / 2),
+            (t, (y_max - y_min) / 2),
+            z,
+            rgba=rgba,
+        ),
+    ]
+    left, right = x_min - 2 * t, x_max + 2 * t
+    pieces = [(left, right)]
+    if door is not None:
+        centre, width = door
+        pieces = [(left, centre - width / 2), (centre + width / 2, right)]
+    for index, (start, end) in enumerate(pieces):
+        if end - start > 1e-6:
+            walls.append(
+                box(
+                    f'wall_north_{index}',
+                    'wall',
+                    ((start + end) / 2, y_max + t),
+                    ((end - start) / 2, t),
+                    z,
+                    rgba=rgba,
+                )
+            )
+    return walls
+
+
+# ---------------------------------------------------------------- furniture
+
+# Board bottoms, metres above the floor: a LiDAR plane at 0.30 m passes between
+# the boards at 0.232-0.250 and 0.400-0.418, as in the paper's bookshelf world.
+SHELF_BOARD_BOTTOMS = (0.06, 0.232, 0.40, 0.62, 0.982)
+
+
+def bookshelf(
+    prefix: str,
+    front_x: float,
+    centre_y: float,
+    *,
+    width: float = 0.8,
+    depth: float = 0.3,
+    height: float = 1.0,
+    board_bottoms: tuple[float, ...] = SHELF_BOARD_BOTTOMS,
+) -> list[Obstacle]:
+    """A bookshelf facing -x, front at `front_x`: two side panels and thin boards, no back."""
+    t = BOARD_THICKNESS
+    cx = front_x + depth / 2
+    side_y = width / 2 - t / 2
+    parts = [
+        box(
+            f'{prefix}_side_{side}',
+            'shelf_side',
+            (cx, centre_y + sign * side_y),
+            (depth / 2, t / 2),
+            (0.0, height),
+        )
+        for side, sign in (('left', 1.0), ('right', -1.0))
+    ]
+    inner = width / 2 - t
+    for index, bottom in enumerate(board_bottoms):
+        if bottom + t > height + 1e-9:
+            msg = f'shelf board at {bottom} m does not fit in a {height} m bookshelf'
+            raise SimError(msg)
+        parts.append(
+            box(
+                f'{prefix}_board_{index}',
+                'shelf_board',
+                (cx, centre_y),
+                (depth / 2, inner),
+                (bottom, bottom + t),
+            )
+        )
+    return parts
+
+
+def barricade(
+    prefix: str,
+    centre: tuple[float, float],
+    *,
+    base_radius: float = 0.35,
+    base_height: float = 0.2,
+    top_radius: float = 0.12,
+    top_height: float = 0.8,
+    sides: int = 6,
+) -> tuple[list[Obstacle], list[str]]:
+    """A polygonal base (circumradius `base_radius`, a vertex pointing to -x) under a cylinder."""
+    footprint = regular_polygon(centre[0], centre[1], base_radius, sides, math.pi)
+    base, asset = prism(f'{prefix}_base', 'barricade_base', footprint, (0.0, base_height))
+    top = cylinder(f'{prefix}_top', 'barricade_top', centre, top_radius, (base_height, top_height))
+    return [base, top], [asset]
+
+
+def chair(prefix: str, centre: tuple[float, float], yaw: float) -> list[Obstacle]:
+    """A chair: seat board at 0.43-0.46 m on four thin legs (radius 12 mm)."""
+    half = 0.21
+    leg_radius = 0.012
+    c, s = math.cos(yaw), math.sin(yaw)
+    parts = [
+        box(
+            f'{prefix}_seat',
+            'chair_seat',
+            centre,
+            (half, half),
+            (0.43, 0.46),
+            yaw=yaw,
+            rgba='0.5 0.3 0.2 1',
+        )
+    ]
+    inset = half - leg_radius - 0.01
+    for index, (dx, dy) in enumerate(((1, 1), (1, -1), (-1, -1), (-1, 1))):
+        x = centre[0] + inset * (dx * c - dy * s)
+        y = centre[1] + inset * (dx * s + dy * c)
+        parts.append(
+            cylinder(f'{prefix}_leg_{index}', 'chair_leg', (x, y), leg_radius, (0.0, 0.43))
+        )
+    return parts
+
+
+def floor_lamp(prefix: str, centre: tuple[float, float]) -> list[Obstacle]:
+    """A floor lamp: a low wide base (radius 0.16 m, 4 cm high) and a thin pole to 1.6 m."""
+    return [
+        cylinder(f'{prefix}_base', 'lamp_base', centre, 0.16, (0.0, 0.04), rgba='0.2 0.2 0.2 1'),
+        cylinder(f'{prefix}_pole', 'lamp_pole', centre, 0.015, (0.04, 1.6), rgba='0.7 0.7 0.7 1'),
+    ]
+
+
+def low_box(
+    prefix: str, centre: tuple[float, float], yaw: float, size: tuple[float, float, float]
+) -> Obstacle:
+    length, width, height = size
+    return box(
+        prefix,
+        'low_box',
+        centre,
+        (length / 2, width / 2),
+        (0.0, height),
+        yaw=yaw,
+        rgba='0.8 0.6 0.2 1',
+    )
+
+
+def cable_tray(
+    prefix: str, centre: tuple[float, float], yaw: float, length: float = 1.2
+) -> Obstacle:
+    """A cable protector lying on the floor: 12 cm wide, 4 cm high."""
+    half = (length / 2, 0.06)
+    return box(prefix, 'cable_tray', centre, half, (0.0, 0.04), yaw=yaw, rgba='0.1 0.1 0.1 1')
+
+
+# ---------------------------------------------------------------- worlds
+
+SMALL_ROOM = (-1.5, 2.8, -2.0, 2.0)
+LARGE_ROOM = (-3.0, 3.0, -2.5, 2.5)
+ROBOT_AT_ORIGIN = Pose2D(0.0, 0.0, 0.0)
+# Free space kept around the robot's start pose when placing clutter, metres.
+START_CLEARANCE = 0.8
+
+
+def room_world(seed: int = 0) -> World:
+    """An empty room with a door gap in its +y wall; the robot starts in a corner, facing +x."""
+    walls = room_walls(LARGE_ROOM, door=(1.5, 0.9))
+    return World('room', seed, tuple(walls), Pose2D(-2.0, -1.5, 0.0), LARGE_ROOM)
+
+
+def bookshelf_world(seed: int = 0, *, distance: float = 2.0) -> World:
+    """A bookshelf straight ahead, its front `distance` m away, a wall 0.5 m behind it."""
+    bounds = (SMALL_ROOM[0], distance + 0.8, SMALL_ROOM[2], SMALL_ROOM[3])
+    obstacles = room_walls(bounds) + bookshelf('shelf', distance, 0.0)
+    return World('bookshelf', seed, tuple(obstacles), ROBOT_AT_ORIGIN, bounds)
+
+
+def barricade_world(seed: int = 0, *, distance: float = 2.0) -> World:
+    """A barricade whose centre is `distance` m straight ahead of the robot."""
+    parts, assets = barricade('barricade', (distance, 0.0))
+    obstacles = room_walls(SMALL_ROOM) + parts
+    return World('barricade', seed, tuple(obstacles), ROBOT_AT_ORIGIN, SMALL_ROOM, tuple(assets))
+
+
+def clutter_world(seed: int = 0) -> World:
+    """A room with a bookshelf, a barricade and, placed at random by `seed`, chairs, a lamp,
+    low boxes (5-15 cm) and a cable tray."""
+    rng = np.random.default_rng(seed)
+    x_min, x_max, y_min, y_max = LARGE_ROOM
+    start = Pose2D(-2.2, 0.0, 0.0)
+    obstacles = room_walls(LARGE_ROOM) + bookshelf('shelf', x_max - 0.3, 1.2)
+    parts, assets = barricade('barricade', (x_max - 1.0, -1.3))
+    obstacles += parts
+    taken: list[tuple[float, float, float]] = [
+        (start.x, start.y, START_CLEARANCE),
+        (x_max - 0.15, 1.2, 0.5),
+        (x_max - 1.0, -1.3, 0.45),
+    ]
+
+    def place(radius: float) -> tuple[float, float, float]:
+        for _ in range(1000):
+            x = float(rng.uniform(x_min + radius + 0.05, x_max - radius - 0.05))
+            y = float(rng.uniform(y_min + radius + 0.05, y_max - radius - 0.05))
+            if all(math.hypot(x - ox, y - oy) > radius + r for ox, oy, r in taken):
+                taken.append((x, y, radius))
+                return x, y, float(rng.uniform(-math.pi, math.pi))
+        msg = (
+            f'clutter world (seed {seed}) has no free place left for an object of radius {radius} m'
+        )
+        raise SimError(msg)
+
+    for index in range(2):
+        x, y, yaw = place(0.32)
+        obstacles += chair(f'chair{index}', (x, y), yaw)
+    x, y, _ = place(0.2)
+    obstacles += floor_lamp('lamp', (x, y))
+    for index in range(3):
+        size = (
+            float(rng.uniform(0.15, 0.4)),
+            float(rng.uniform(0.15, 0.3)),
+            float(rng.uniform(0.05, 0.15)),
+        )
+        x, y, yaw = place(0.5 * math.hypot(size[0], size[1]) + 0.05)
+        obstacles.append(low_box(f'box{index}', (x, y), yaw, size))
+    x, y, yaw = place(0.65)
+    obstacles.append(cable_tray('cable_tray', (x, y), yaw))
+    return World('clutter', seed, tuple(obstacles), start, LARGE_ROOM, tuple(assets))
+
+
+WORLDS: dict[str, Callable[[int], World]] = {
+    'room': room_world,
+    'bookshelf': bookshelf_world,
+    'barricade': barricade_world,
+    'clutter': clutter_world,
+}
+
+
+def make_world(name: str, seed: int = 0) -> World:
+    """The world called `name` (room, bookshelf, barricade, clutter) generated with `seed`."""
+    builder = WORLDS.get(name)
+    if builder is None:
+        msg = f'unknown world {name!r}; choose one of {", ".join(WORLDS)}'
+        raise SimError(msg)
+    return builder(seed)

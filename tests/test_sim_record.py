@@ -1,0 +1,182 @@
+"""Recorded bags: readable by rosbags and by the independent mcap reader, transforms resolve."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import QosDurability
+from rosbags.typesys import Stores, get_typestore
+
+from scanfuse.cli import main
+from scanfuse.ros.messages import transforms_from_msg
+from scanfuse.ros.tf import TransformStore
+from scanfuse.sim import SimConfig, SimError, record, scripted_path
+from scanfuse.sim.cli import parse_backend, parse_resolution
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+EXPECTED_TYPES = {
+    '/scan': 'sensor_msgs/msg/LaserScan',
+    '/scan_truth': 'sensor_msgs/msg/LaserScan',
+    '/camera/depth/image_raw': 'sensor_msgs/msg/Image',
+    '/camera/depth/camera_info': 'sensor_msgs/msg/CameraInfo',
+    '/tf': 'tf2_msgs/msg/TFMessage',
+    '/tf_static': 'tf2_msgs/msg/TFMessage',
+    '/odom': 'nav_msgs/msg/Odometry',
+    '/ground_truth/pose': 'geometry_msgs/msg/PoseStamped',
+    '/collisions': 'std_msgs/msg/String',
+}
+CONFIG = SimConfig(world='bookshelf', resolution=(256, 144), depth_rate=5.0)
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp('sim') / 'run.mcap'
+    # 7.5 s at 0.3 m/s: the robot reaches the shelf and pushes against it for a while.
+    record(CONFIG, scripted_path('straight'), 7.5, out)
+    return out
+
+
+def read_all(path: Path) -> dict[str, list]:
+    messages: dict[str, list] = {}
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for connection, _, raw in reader.messages():
+            messages.setdefault(connection.topic, []).append(
+                reader.deserialize(raw, connection.msgtype)
+            )
+    return messages
+
+
+def test_bag_is_one_mcap_file_with_every_topic_and_type(bag):
+    assert bag.is_file()
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        static = next(c for c in reader.connections if c.topic == '/tf_static')
+        durability = static.ext.offered_qos_profiles[0].durability
+    assert types == EXPECTED_TYPES
+    assert counts['/scan'] == counts['/scan_truth'] == 76  # 10 Hz over [0, 7.5] s
+    assert counts['/camera/depth/image_raw'] == counts['/camera/depth/camera_info'] == 38
+    assert counts['/tf_static'] == 1
+    assert counts['/collisions'] >= 1
+    assert durability == QosDurability.TRANSIENT_LOCAL
+
+
+def test_messages_hold_what_the_simulation_produced(bag):
+    messages = read_all(bag)
+    scan = messages['/scan'][0]
+    truth = messages['/scan_truth'][0]
+    assert scan.header.frame_id == truth.header.frame_id == 'laser'
+    assert len(scan.ranges) == len(truth.ranges) == 1080
+    assert scan.header.stamp == truth.header.stamp
+    # Straight ahead at the start: the wall 2.8 m away through the shelf; the truth: boards at 2 m.
+    assert scan.ranges[540] == pytest.approx(2.8, abs=0.05)
+    assert truth.ranges[540] == pytest.approx(2.0, abs=0.002)
+    image = messages['/camera/depth/image_raw'][0]
+    assert (image.encoding, image.width, image.height, image.step) == ('16UC1', 256, 144, 512)
+    assert image.header.frame_id == 'camera_depth_optical_frame'
+    depth = np.frombuffer(image.data, dtype='<u2').reshape(144, 256)
+    assert 0 < np.count_nonzero(depth) < depth.size
+    info = messages['/camera/depth/camera_info'][0]
+    focal = 72.0 / math.tan(math.radians(29.0))
+    assert info.k.tolist() == pytest.approx([focal, 0, 127.5, 0, focal, 71.5, 0, 0, 1])
+    collision = json.loads(messages['/collisions'][0].data)
+    assert collision['contacts'][0]['kind'] in {'shelf_board', 'shelf_side'}
+    assert collision['contacts'][0]['robot_geom'] == 'robot/chassis'
+    odom, pose = messages['/odom'][0], messages['/ground_truth/pose'][0]
+    assert (odom.header.frame_id, odom.child_frame_id, pose.header.frame_id) == (
+        'odom',
+        'base_link',
+        'world',
+    )
+    # Before the contact, odometry and the true displacement agree.
+    early_odom, early_pose = messages['/odom'][100], messages['/ground_truth/pose'][100]
+    assert early_odom.pose.pose.position.x == pytest.approx(early_pose.pose.position.x, abs=0.05)
+    assert early_pose.pose.position.x > 0.5
+
+
+def test_independent_mcap_reader_decodes_the_bag(bag):
+    seen: dict[str, int] = {}
+    with bag.open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, message in reader.iter_decoded_messages():
+            seen[channel.topic] = seen.get(channel.topic, 0) + 1
+            if channel.topic == '/scan' and seen[channel.topic] == 1:
+                assert len(message.ranges) == 1080
+                assert message.header.frame_id == 'laser'
+            if channel.topic == '/camera/depth/image_raw' and seen[channel.topic] == 1:
+                assert message.encoding == '16UC1'
+    assert set(seen) == set(EXPECTED_TYPES)
+
+
+def test_transforms_resolve_from_base_link_to_the_optical_frame(bag):
+    messages = read_all(bag)
+    store = TransformStore()
+    store.add_all(transforms_from_msg(messages['/tf_static'][0]), static=True)
+    laser = store.lookup('base_link', 'laser')
+    assert laser[:3, 3] == pytest.approx([0.0, 0.0, 0.30])
+    optical = store.lookup('base_link', 'camera_depth_optical_frame')
+    pitch = math.radians(20.0)
+    assert optical[:3, 3] == pytest.approx([0.12, 0.0, 0.45])
+    # The optical z axis looks forward and 20 degrees down, x to the right, y down-ish (REP-103).
+    assert optical[:3, 2] == pytest.approx([math.cos(pitch), 0.0, -math.sin(pitch)])
+    assert optical[:3, 0] == pytest.approx([0.0, -1.0, 0.0])
+    assert optical[:3, 1] == pytest.approx([-math.sin(pitch), 0.0, -math.cos(pitch)])
+    odom = transforms_from_msg(messages['/tf'][-1])[0]
+    assert (odom.parent, odom.child) == ('odom', 'base_link')
+
+
+def test_a_folder_name_gives_a_rosbag2_directory(tmp_path):
+    out = tmp_path / 'run_dir'
+    summary = record(CONFIG, scripted_path('rotate'), 0.3, out)
+    assert (out / 'metadata.yaml').is_file()
+    assert summary.counts['/scan'] == 4
+    with pytest.raises(SimError, match='exists already; remove it'):
+        record(CONFIG, scripted_path('rotate'), 0.3, out)
+
+
+def test_cli_simulate_writes_bag_and_snapshot(tmp_path, capsys):
+    out, png = tmp_path / 'cli.mcap', tmp_path / 'world.png'
+    code = main(
+        [
+            'simulate',
+            '--world',
+            'barricade',
+            '--path',
+            'straight',
+            '--duration',
+            '0.5',
+            '--out',
+            str(out),
+            '--resolution',
+            '424x240',
+            '--depth-rate',
+            '4',
+            '--no-noise',
+            '--seed',
+            '3',
+            '--snapshot',
+            str(png),
+        ]
+    )
+    assert code == 0
+    assert out.is_file()
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert 'real-time factor' in capsys.readouterr().out
+
+
+def test_cli_reports_bad_options_in_one_line(tmp_path, capsys):
+    code = main(['simulate', '--out', str(tmp_path / 'x.mcap'), '--resolution', '640by480'])
+    assert code == 1
+    assert "resolution '640by480' is not WIDTHxHEIGHT" in capsys.readouterr().err
+    with pytest.raises(SimError, match="unknown depth backend 'opengl'"):
+        parse_backend('opengl')
+    assert parse_resolution(' 848x480 ') == (848, 480)
