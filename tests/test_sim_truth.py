@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scanfuse.scan import AngleGrid
-from scanfuse.sim import TruthScanner
+from scanfuse.sim import Obstacle, SimError, TruthScanner
 from scanfuse.sim.worlds import box, cylinder
 
 GRID = AngleGrid(-math.pi, 2 * math.pi / 360, 360)  # one-degree slots
@@ -112,3 +112,15 @@ def test_truth_equals_a_brute_force_minimum_over_each_slot(x, y, half_x, half_y,
     # Slots that the dense rays miss entirely can only be grazed at their very edge.
     grazed = np.isfinite(ranges) & ~both
     assert grazed.sum() <= 2
+
+
+def test_clockwise_footprints_are_reordered_and_give_the_same_truth():
+    wall = box('w', 'wall', (1.1, 0.0), (0.1, 0.5), (0.0, 1.0))
+    clockwise = Obstacle('cw', 'wall', wall.footprint[::-1].copy(), 0.0, 1.0, '')
+    assert np.array_equal(clockwise.footprint, wall.footprint)
+    assert scanner(clockwise).scan(0.0, 0.0, 0.0)[180] == pytest.approx(1.0)
+
+
+def test_a_degenerate_footprint_is_refused():
+    with pytest.raises(SimError, match=r"obstacle 'line' needs an \(N >= 3, 2\) footprint"):
+        Obstacle('line', 'wall', np.zeros((2, 2)), 0.0, 1.0, '')

@@ -238,19 +238,21 @@ def optical_rays(camera: CameraModel) -> tuple[Matrix, npt.NDArray[np.float64]]:
 
 
 def depth_edges(depth: npt.NDArray[np.float64], jump: float) -> npt.NDArray[np.bool_]:
-    """Pixels with a 4-neighbour whose depth differs by more than `jump` times the nearer depth."""
+    """Pixels with a 4-neighbour whose depth differs by more than `jump` times the nearer depth.
+
+    A pixel next to one with no return (NaN) is an edge too.
+    """
     edges = np.zeros(depth.shape, dtype=bool)
     with np.errstate(invalid='ignore'):
-        for axis in (0, 1):
-            step = np.abs(np.diff(depth, axis=axis))
-            nearer = np.fmin(np.delete(depth, -1, axis=axis), np.delete(depth, 0, axis=axis))
+        for first, second, first_edges, second_edges in (
+            (depth[:-1, :], depth[1:, :], edges[:-1, :], edges[1:, :]),
+            (depth[:, :-1], depth[:, 1:], edges[:, :-1], edges[:, 1:]),
+        ):
+            nearer = np.fmin(first, second)
+            step = np.abs(first - second)
             big = (step > jump * nearer) | (np.isnan(step) & ~np.isnan(nearer))
-            if axis == 0:
-                edges[1:, :] |= big
-                edges[:-1, :] |= big
-            else:
-                edges[:, 1:] |= big
-                edges[:, :-1] |= big
+            np.logical_or(first_edges, big, out=first_edges)  # views into `edges`
+            np.logical_or(second_edges, big, out=second_edges)
     return edges
 
 

@@ -75,8 +75,13 @@ class TruthScanner:
         a = (self.starts - (x, y)) @ to_laser
         b = (self.ends - (x, y)) @ to_laser
         edge = b - a
+        # Seen from outside, the nearest boundary point in any direction lies on an edge
+        # that faces the LiDAR (footprints are counter-clockwise: outward normal (dy, -dx)).
+        facing = edge[:, 1] * a[:, 0] - edge[:, 0] * a[:, 1] <= 0.0
+        a, edge = a[facing], edge[facing]
+        b = b[facing]
         self._bounding_rays(a, edge, best)
-        self._points(a, best)
+        self._points(np.concatenate([a, b]), best)
         self._perpendicular_feet(a, edge, best)
         best[best > self.range_max] = np.inf
         return best.astype(np.float32)

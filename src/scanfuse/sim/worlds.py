@@ -61,6 +61,16 @@ class Obstacle:
     z_max: float
     mjcf: str = field(repr=False)
 
+    def __post_init__(self) -> None:
+        footprint = np.asarray(self.footprint, dtype=np.float64)
+        if footprint.ndim != 2 or footprint.shape[0] < 3 or footprint.shape[1] != 2:
+            msg = f'obstacle {self.name!r} needs an (N >= 3, 2) footprint, got {footprint.shape}'
+            raise SimError(msg)
+        x, y = footprint[:, 0], footprint[:, 1]
+        if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0.0:
+            footprint = footprint[::-1]  # the truth scan relies on counter-clockwise order
+        object.__setattr__(self, 'footprint', footprint)
+
     def overlaps_slab(self, low: float, high: float) -> bool:
         """Whether any part of the obstacle lies at a height inside [low, high]."""
         return self.z_min <= high and self.z_max >= low
