@@ -127,6 +127,23 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
     )
 
 
+
+@app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})
+def node(
+    ctx: typer.Context,
+    params_file: Annotated[
+        Path | None,
+        typer.Option('--params-file', help='ROS 2 parameter file (scanfuse: ros__parameters)'),
+    ] = None,
+) -> None:
+    """Run the live ROS 2 node; ROS arguments follow --ros-args (-r remaps, -p name:=value)."""
+    from scanfuse.ros.node import main as node_main  # noqa: PLC0415
+
+    args = ['--params-file', str(params_file)] if params_file else []
+    code = node_main([*args, *ctx.args])
+    if code:
+        raise typer.Exit(code)
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')

@@ -1,0 +1,47 @@
+"""Launch scanfuse next to a RealSense camera and an RPLIDAR (Humble and Jazzy).
+
+    ros2 launch examples/scanfuse.launch.py params_file:=examples/scanfuse_robot.yaml
+
+scanfuse is not a colcon package: the node runs as the `scanfuse` executable of the
+Python environment it was installed into (`pip install scanfuse[ros]`, or into the
+system Python of a ROS install), started here with ExecuteProcess. Inputs and
+outputs can be remapped like any node's.
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, ExecuteProcess
+from launch.substitutions import LaunchConfiguration
+
+
+def generate_launch_description() -> LaunchDescription:
+    params_file = LaunchConfiguration('params_file')
+    executable = LaunchConfiguration('scanfuse')
+    overrides = {
+        'min_obstacle_height': '0.03',
+        'max_obstacle_height': '0.5',
+        'camera_timeout': '0.5',
+    }
+    ros_args = []
+    for name, value in overrides.items():
+        ros_args += ['-p', f'{name}:={value}']
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument('params_file', default_value='examples/scanfuse_robot.yaml'),
+            DeclareLaunchArgument('scanfuse', default_value='scanfuse'),
+            DeclareLaunchArgument('scan', default_value='/scan'),
+            ExecuteProcess(
+                cmd=[
+                    executable,
+                    'node',
+                    '--params-file',
+                    params_file,
+                    '--ros-args',
+                    *ros_args,
+                    '-r',
+                    ['/scan:=', LaunchConfiguration('scan')],
+                ],
+                name='scanfuse',
+                output='screen',
+            ),
+        ]
+    )

@@ -1,0 +1,286 @@
+"""Peers of the live node for tests and benchmarks, each run as its own process over DDS.
+
+    python -m scanfuse.ros.loopback play BAG [--garbage-at S]   replay a bag at real time
+    python -m scanfuse.ros.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
+    python -m scanfuse.ros.loopback set-param NAME VALUE --out RESULT.json
+
+Data topics are published best effort (like Gazebo and camera drivers), /tf_static
+transient local. `record` writes what it received to an MCAP bag whose log times
+are the monotonic receive times (comparable across processes on one machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import rclpy
+import rclpy.utilities
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from sensor_msgs.msg import CameraInfo, Image, LaserScan
+
+from scanfuse.ros.messages import (
+    CAMERA_INFO,
+    IMAGE,
+    LASER_SCAN,
+    TF_MESSAGE,
+    depth_to_cdr,
+    typestore,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+DIAGNOSTICS = 'diagnostic_msgs/msg/DiagnosticArray'
+DISCOVERY_TIMEOUT_S = 20.0
+
+
+def _ros_types() -> dict[str, Any]:
+    from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+
+    types: dict[str, Any] = {
+        LASER_SCAN: LaserScan,
+        IMAGE: Image,
+        CAMERA_INFO: CameraInfo,
+        DIAGNOSTICS: DiagnosticArray,
+    }
+    try:
+        from tf2_msgs.msg import TFMessage  # noqa: PLC0415
+    except ImportError:
+        pass
+    else:
+        types[TF_MESSAGE] = TFMessage
+    return types
+
+
+def _qos(topic: str) -> QoSProfile:
+    if topic == '/tf_static':
+        from scanfuse.ros.node import TF_STATIC_QOS  # noqa: PLC0415
+
+        return TF_STATIC_QOS
+    return qos_profile_sensor_data
+
+
+def _spin_until(node: Any, done: Callable[[], bool], timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return True
+
+
+def garbage_messages() -> list[tuple[str, bytes]]:
+    """Malformed depth images: truncated CDR, and a valid Image with the wrong encoding."""
+    import numpy as np  # noqa: PLC0415
+
+    store = typestore()
+    good = depth_to_cdr(np.zeros((4, 4), dtype=np.uint16), frame_id='cam', stamp_ns=1, store=store)
+    wrong: Any = store.deserialize_cdr(good, IMAGE)
+    wrong.encoding = 'rgb8'
+    return [
+        ('truncated', good[: len(good) // 2]),
+        ('rgb8', bytes(store.serialize_cdr(wrong, IMAGE))),
+    ]
+
+
+def play(
+    bag: Path,
+    *,
+    garbage_at: float | None = None,
+    wait_for: Sequence[str] = (),
+    started: Path | None = None,
+) -> int:
+    """Publish every message of `bag` at its recorded pace; 0, or 2 when nobody subscribed."""
+    types = _ros_types()
+    node = rclpy.create_node('scanfuse_player')
+    with AnyReader([bag]) as reader:
+        publishers = {}
+        for connection in reader.connections:
+            if connection.msgtype in types and connection.topic not in publishers:
+                publishers[connection.topic] = node.create_publisher(
+                    types[connection.msgtype], connection.topic, _qos(connection.topic)
+                )
+        waited = [publishers[topic] for topic in wait_for if topic in publishers]
+        if not _spin_until(
+            node, lambda: all(p.get_subscription_count() > 0 for p in waited), DISCOVERY_TIMEOUT_S
+        ):
+            print('play: the node did not subscribe in time', file=sys.stderr)
+            return 2
+        messages = [
+            (connection.topic, log_time, raw)
+            for connection, log_time, raw in reader.messages()
+            if connection.topic in publishers
+        ]
+    if started is not None:
+        started.write_text('started', encoding='utf-8')
+    start_wall = time.monotonic()
+    start_log = messages[0][1] if messages else 0
+    garbage = garbage_messages() if garbage_at is not None else []
+    depth_topic = next((t for t, _, _ in messages if t.endswith('image_raw')), None)
+    for topic, log_time, raw in messages:
+        due = start_wall + (log_time - start_log) / 1e9
+        while (delay := due - time.monotonic()) > 0:
+            time.sleep(min(delay, 0.01))
+        if garbage and garbage_at is not None and time.monotonic() - start_wall >= garbage_at:
+            for _, bad in garbage:
+                if depth_topic is not None:
+                    publishers[depth_topic].publish(bad)
+            garbage = []
+        publishers[topic].publish(bytes(raw))
+    # Let best-effort samples leave before the participant goes away.
+    time.sleep(0.2)
+    node.destroy_node()
+    return 0
+
+
+def record(
+    out: Path,
+    topics: Sequence[str],
+    duration: float,
+    *,
+    ready: Path | None = None,
+    stop: Path | None = None,
+    expect_publisher: bool = False,
+) -> int:
+    """Write what arrives on `topics` into an MCAP bag at `out`.
+
+    Records for at most `duration` seconds, or until the file `stop` exists.
+    """
+    types = _ros_types()
+    node = rclpy.create_node('scanfuse_recorder')
+    store = typestore()
+    kinds = {topic: (DIAGNOSTICS if topic == '/diagnostics' else LASER_SCAN) for topic in topics}
+    received: list[tuple[str, int, bytes]] = []
+
+    def callback(topic: str) -> Callable[[bytes], None]:
+        return lambda raw: received.append((topic, time.monotonic_ns(), bytes(raw)))
+
+    for topic, msgtype in kinds.items():
+        node.create_subscription(types[msgtype], topic, callback(topic), 10, raw=True)
+    if expect_publisher:
+        _spin_until(
+            node, lambda: all(node.count_publishers(t) > 0 for t in topics), DISCOVERY_TIMEOUT_S
+        )
+    if ready is not None:
+        ready.write_text('ready', encoding='utf-8')
+    deadline = time.monotonic() + duration
+    while time.monotonic() < deadline and not (stop is not None and stop.exists()):
+        rclpy.spin_once(node, timeout_sec=0.05)
+    node.destroy_node()
+    with Writer(out, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {
+            topic: writer.add_connection(topic, msgtype, typestore=store)
+            for topic, msgtype in kinds.items()
+        }
+        for topic, stamp, raw in received:
+            writer.write(connections[topic], stamp, raw)
+    return 0
+
+
+def set_param(
+    name: str,
+    value: str,
+    out: Path,
+    *,
+    go: Path | None = None,
+    after: float = 0.0,
+    node_name: str = 'scanfuse',
+) -> int:
+    """`ros2 param set` through the node's set_parameters service; the result as JSON.
+
+    With `go`, the request is sent `after` seconds after that file appears (the
+    service is found before, so the moment of the change is known to the caller).
+    """
+    from rcl_interfaces.srv import SetParameters  # noqa: PLC0415
+    from rclpy.parameter import Parameter  # noqa: PLC0415
+
+    node = rclpy.create_node('scanfuse_param_setter')
+    client = node.create_client(SetParameters, f'/{node_name}/set_parameters')
+    if not client.wait_for_service(timeout_sec=DISCOVERY_TIMEOUT_S):
+        print('set-param: no set_parameters service', file=sys.stderr)
+        return 2
+    while go is not None and not go.exists():
+        time.sleep(0.01)
+    time.sleep(after)
+    request = SetParameters.Request()
+    request.parameters = [Parameter(name, value=_parse_value(value)).to_parameter_msg()]
+    sent = time.monotonic()
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=DISCOVERY_TIMEOUT_S)
+    done = time.monotonic()
+    result = future.result()
+    answer = result.results[0] if result is not None else None
+    out.write_text(
+        json.dumps(
+            {
+                'successful': bool(answer.successful) if answer else False,
+                'reason': str(answer.reason) if answer else 'no answer',
+                'sent': sent,
+                'done': done,
+            }
+        ),
+        encoding='utf-8',
+    )
+    node.destroy_node()
+    return 0
+
+
+def _parse_value(text: str) -> Any:
+    """A parameter value from text as `ros2 param set` reads it (YAML scalars)."""
+    import yaml  # noqa: PLC0415
+
+    return yaml.safe_load(text)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m scanfuse.ros.loopback')
+    commands = parser.add_subparsers(dest='command', required=True)
+    play_cmd = commands.add_parser('play')
+    play_cmd.add_argument('bag', type=Path)
+    play_cmd.add_argument('--garbage-at', type=float, default=None)
+    play_cmd.add_argument('--wait-for', action='append', default=[])
+    play_cmd.add_argument('--started', type=Path, default=None)
+    record_cmd = commands.add_parser('record')
+    record_cmd.add_argument('out', type=Path)
+    record_cmd.add_argument('--topic', action='append', required=True)
+    record_cmd.add_argument('--duration', type=float, required=True)
+    record_cmd.add_argument('--ready', type=Path, default=None)
+    record_cmd.add_argument('--stop', type=Path, default=None)
+    record_cmd.add_argument('--expect-publisher', action='store_true')
+    param_cmd = commands.add_parser('set-param')
+    param_cmd.add_argument('name')
+    param_cmd.add_argument('value')
+    param_cmd.add_argument('--out', type=Path, required=True)
+    param_cmd.add_argument('--go', type=Path, default=None)
+    param_cmd.add_argument('--after', type=float, default=0.0)
+    args = parser.parse_args(argv)
+    rclpy.init()
+    try:
+        if args.command == 'play':
+            return play(
+                args.bag, garbage_at=args.garbage_at, wait_for=args.wait_for, started=args.started
+            )
+        if args.command == 'record':
+            return record(
+                args.out,
+                args.topic,
+                args.duration,
+                ready=args.ready,
+                stop=args.stop,
+                expect_publisher=args.expect_publisher,
+            )
+        return set_param(args.name, args.value, args.out, go=args.go, after=args.after)
+    finally:
+        if rclpy.utilities.ok():
+            rclpy.shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,331 @@
+"""The live ROS 2 node `scanfuse`: rclpy in, `LiveFusion` decides, rclpy out.
+
+    python -m scanfuse.ros.node [--params-file FILE] [--ros-args -r /scan:=/lidar -p name:=value]
+    scanfuse node ...            (the same)
+
+Subscriptions are raw (CDR bytes), so messages are decoded and encoded by
+`scanfuse.ros.messages` exactly as the bag processor does. Inputs use the
+sensor-data QoS (best effort, keep last 5), which matches both best-effort
+(Gazebo, camera drivers) and reliable publishers; outputs are reliable, keep
+last 10, which slam_toolbox's, Nav2's and RViz's subscribers (reliable or best
+effort) all accept. Only rclpy API that Humble has is used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from typing import TYPE_CHECKING, Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from rclpy.utilities import ok, remove_ros_args
+from sensor_msgs.msg import CameraInfo, Image, LaserScan
+
+from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
+from scanfuse.errors import ConfigError, ScanfuseError
+from scanfuse.ros.live import LiveFusion
+from scanfuse.ros.params import (
+    Kind,
+    NodeSettings,
+    ParamSpec,
+    all_param_specs,
+    check_change,
+    config_from_ros,
+    settings_from_ros,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from scanfuse.ros.live import Health, Output
+
+logger = logging.getLogger('scanfuse')
+
+OUTPUT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+TF_STATIC_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
+TICK_PERIOD_S = 0.005
+_ROS_TYPES = {
+    Kind.BOOL: ParameterType.PARAMETER_BOOL,
+    Kind.INTEGER: ParameterType.PARAMETER_INTEGER,
+    Kind.DOUBLE: ParameterType.PARAMETER_DOUBLE,
+    Kind.STRING: ParameterType.PARAMETER_STRING,
+}
+
+
+def descriptor(spec: ParamSpec) -> Any:
+    """The rclpy `ParameterDescriptor` of a parameter (fields that exist in Humble only)."""
+    result = ParameterDescriptor(
+        name=spec.name,
+        type=_ROS_TYPES[spec.kind],
+        description=spec.description,
+        additional_constraints=spec.constraints,
+        # Doubles accept integers too (`-p camera_x:=0`); FusionConfig converts and checks.
+        dynamic_typing=spec.kind is Kind.DOUBLE,
+    )
+    bounds = spec.value_range
+    if bounds is not None and spec.kind is Kind.INTEGER:
+        result.integer_range = [IntegerRange(from_value=int(bounds[0]), to_value=int(bounds[1]))]
+    elif bounds is not None and spec.kind is Kind.DOUBLE:
+        result.floating_point_range = [
+            FloatingPointRange(from_value=float(bounds[0]), to_value=float(bounds[1]))
+        ]
+    return result
+
+
+class _RosLogHandler(logging.Handler):
+    """Sends the library's `logging` records to the node's rclpy logger (/rosout)."""
+
+    def __init__(self, ros_logger: Any) -> None:
+        super().__init__()
+        self.ros_logger = ros_logger
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = self.format(record)
+        if record.levelno >= logging.ERROR:
+            self.ros_logger.error(message)
+        elif record.levelno >= logging.WARNING:
+            self.ros_logger.warning(message)
+        elif record.levelno >= logging.INFO:
+            self.ros_logger.info(message)
+        else:
+            self.ros_logger.debug(message)
+
+
+def _load_defaults(params_file: str | None) -> tuple[FusionConfig, NodeSettings]:
+    """Defaults from the parameter file: fusion settings and the node's own."""
+    if params_file is None:
+        return FusionConfig(), NodeSettings()
+    values = read_ros_params(params_file)
+    node_values: dict[str, Any] = {
+        name: values.pop(name) for name in ('pair_wait', 'lidar_timeout') if name in values
+    }
+    return FusionConfig.from_dict(values), settings_from_ros(node_values)
+
+
+class ScanfuseNode:
+    """The rclpy node: declares parameters, wires topics to a `LiveFusion`, reports health."""
+
+    def __init__(self, defaults: FusionConfig, settings: NodeSettings) -> None:
+        self.node = rclpy.create_node(NODE_NAME)
+        self.rosout = self.node.get_logger()
+        self.specs = {spec.name: spec for spec in all_param_specs(defaults, settings)}
+        for spec in self.specs.values():
+            self.node.declare_parameter(spec.name, spec.default, descriptor(spec))
+        values = self.parameter_values()
+        config = config_from_ros(values)
+        settings = settings_from_ros(values)
+        self.live = LiveFusion(
+            config, pair_wait=settings.pair_wait, lidar_timeout=settings.lidar_timeout
+        )
+        self.live.warm_up()
+        self.node.add_on_set_parameters_callback(self._on_set_parameters)
+        sensor_qos = qos_profile_sensor_data
+        self.node.create_subscription(
+            LaserScan, config.scan_topic, self._on_scan, sensor_qos, raw=True
+        )
+        self.node.create_subscription(
+            Image, config.depth_topic, self._on_depth, sensor_qos, raw=True
+        )
+        self.node.create_subscription(
+            CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
+        )
+        self.fused_pub = self.node.create_publisher(LaserScan, config.fused_topic, OUTPUT_QOS)
+        self.depth_pub = (
+            self.node.create_publisher(LaserScan, config.depth_scan_topic, OUTPUT_QOS)
+            if config.publish_depth_scan
+            else None
+        )
+        self.diagnostics_pub = self.node.create_publisher(
+            DiagnosticArray, '/diagnostics', OUTPUT_QOS
+        )
+        self.tf_source = self._subscribe_tf()
+        self.node.create_timer(1.0, self._publish_diagnostics)
+        self.tick_timer = self.node.create_timer(TICK_PERIOD_S, self._on_tick)
+        self._set_tick(settings.pair_wait)
+        self.rosout.info(
+            f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
+            f'(method {config.method.value}; extrinsics: {self.tf_source})'
+        )
+
+    def parameter_values(self) -> dict[str, Any]:
+        return {name: self.node.get_parameter(name).value for name in self.specs}
+
+    # ------------------------------------------------------------ TF
+
+    def _subscribe_tf(self) -> str:
+        try:
+            from tf2_msgs.msg import TFMessage  # noqa: PLC0415 - not among the PyPI wheels
+        except ImportError:
+            return 'parameters (tf2_msgs is not installed: see tools/build_tf2_msgs.py)'
+        self.node.create_subscription(
+            TFMessage, '/tf_static', self._on_tf_static, TF_STATIC_QOS, raw=True
+        )
+        self.node.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS, raw=True)
+        return '/tf_static and /tf, else parameters'
+
+    def _on_tf_static(self, raw: bytes) -> None:
+        self.live.on_tf(raw, static=True)
+
+    def _on_tf(self, raw: bytes) -> None:
+        self.live.on_tf(raw, static=False)
+
+    # ------------------------------------------------------------ data
+
+    def _on_scan(self, raw: bytes) -> None:
+        self._publish(self._guard('scan', lambda: self.live.on_scan(raw, time.monotonic()), raw))
+
+    def _on_depth(self, raw: bytes) -> None:
+        self._publish(self._guard('depth image', lambda: self.live.on_depth(raw, time.monotonic())))
+
+    def _on_camera_info(self, raw: bytes) -> None:
+        self._guard('camera info', lambda: self.live.on_camera_info(raw, time.monotonic()))
+
+    def _on_tick(self) -> None:
+        self._publish(self._guard('tick', lambda: self.live.on_tick(time.monotonic())))
+
+    def _guard(self, kind: str, action: Any, lidar_raw: bytes | None = None) -> Any:
+        """Run a callback; an unexpected error is counted and logged, never kills the node."""
+        try:
+            return action()
+        # A robot's scan must keep flowing whatever went wrong: any error is caught here.
+        except Exception:
+            self.live.malformed[f'internal ({kind})'] = (
+                self.live.malformed.get(f'internal ({kind})', 0) + 1
+            )
+            if self.live.malformed[f'internal ({kind})'] == 1:
+                logger.exception('unexpected error handling a %s; the LiDAR passes through', kind)
+            # The LiDAR's own scan is always safe to publish.
+            return [] if lidar_raw is None else [_raw_output(lidar_raw)]
+
+    def _publish(self, outputs: list[Output] | None) -> None:
+        for output in outputs or []:
+            self.fused_pub.publish(output.fused)
+            if self.depth_pub is not None and output.depth_scan is not None:
+                self.depth_pub.publish(output.depth_scan)
+
+    # ------------------------------------------------------------ parameters
+
+    def _on_set_parameters(self, parameters: list[Any]) -> Any:
+        changes = {p.name: p.value for p in parameters if p.name in self.specs}
+        current = self.parameter_values()
+        reason = check_change(current, changes)
+        if reason is not None:
+            self.rosout.warning(f'parameter change rejected: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
+        merged = {**current, **changes}
+        config = config_from_ros(merged)
+        settings = settings_from_ros(merged)
+        self.live.reconfigure(config)
+        self.live.pair_wait = settings.pair_wait
+        self.live.lidar_timeout = settings.lidar_timeout
+        self._set_tick(settings.pair_wait)
+        self.rosout.info(f'parameters changed: {changes}')
+        return SetParametersResult(successful=True, reason='')
+
+    def _set_tick(self, pair_wait: float) -> None:
+        if pair_wait > 0.0:
+            self.tick_timer.reset()
+        else:
+            self.tick_timer.cancel()
+
+    # ------------------------------------------------------------ diagnostics
+
+    def _publish_diagnostics(self) -> None:
+        health = self.live.health(time.monotonic())
+        self.diagnostics_pub.publish(self.diagnostics_message(health))
+
+    def diagnostics_message(self, health: Health) -> Any:
+        status = DiagnosticStatus(
+            level=bytes([int(health.level)]),
+            name=f'{self.node.get_name()}: fusion',
+            message=health.message,
+            hardware_id=self.node.get_fully_qualified_name(),
+            values=[KeyValue(key=key, value=value) for key, value in health.values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.node.get_clock().now().to_msg()
+        return array
+
+
+def _raw_output(raw: bytes) -> Output:
+    from scanfuse.ros.live import Output  # noqa: PLC0415
+
+    return Output(raw, None, time.monotonic(), with_camera=False)
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog='scanfuse node',
+        description='The scanfuse ROS 2 node. ROS arguments follow --ros-args.',
+    )
+    parser.add_argument('--params-file', help='ROS 2 parameter file (scanfuse: ros__parameters)')
+    return parser.parse_args(remove_ros_args(args=list(argv))[1:])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the node until Ctrl-C or shutdown; 0 on a clean stop, 1 on a configuration error."""
+    argv = list(sys.argv if argv is None else ['scanfuse', *argv])
+    options = _parse(argv)
+    try:
+        defaults, settings = _load_defaults(options.params_file)
+    except ConfigError as err:
+        print(f'scanfuse node: {err}', file=sys.stderr)
+        return 1
+    rclpy.init(args=argv)
+    try:
+        try:
+            fusion = ScanfuseNode(defaults, settings)
+        except ScanfuseError as err:
+            print(f'scanfuse node: {err}', file=sys.stderr)
+            return 1
+        handler = _RosLogHandler(fusion.rosout)
+        library_logger = logging.getLogger('scanfuse')
+        library_logger.addHandler(handler)
+        library_logger.setLevel(logging.INFO)
+        library_logger.propagate = False  # rclpy's logger already prints and sends to /rosout
+        executor = SingleThreadedExecutor()
+        executor.add_node(fusion.node)
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            executor.shutdown()
+            fusion.node.destroy_node()
+    finally:
+        if ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
