@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from scanfuse.pipeline import FusionPipeline
 from scanfuse.sim import (
+    FusedController,
     Lap,
     Observation,
     SimConfig,
@@ -15,6 +17,7 @@ from scanfuse.sim import (
     Simulation,
     Trace,
     WheelOdometry,
+    fusion_config,
     scripted_path,
 )
 from scanfuse.sim.simulation import EPOCH_NS
@@ -123,3 +126,22 @@ def test_bad_run_settings_are_refused():
         SimConfig(depth_rate=0.0)
     with pytest.raises(SimError, match=r'timestep 0\.1 s must be in'):
         SimConfig(timestep=0.1)
+
+
+def test_fused_controller_sees_the_shelf_boards_the_lidar_misses():
+    config = SimConfig(world='bookshelf', resolution=(424, 240), depth_rate=10.0, noise=False)
+    ahead: list[tuple[float, float]] = []
+
+    def policy(fused, observation):
+        ahead.append((float(fused.ranges[540]), float(observation.scan.ranges[540])))
+        return 0.0, 0.0
+
+    controller = FusedController(policy, FusionPipeline(fusion_config(config)))
+    Simulation(config).run(0.3, controller, Trace())
+    fused_ahead, lidar_ahead = ahead[-1]
+    # The LiDAR looks between the boards to the wall at 2.8 m; fused, the boards are 2.0 m away.
+    assert lidar_ahead == pytest.approx(2.8, abs=0.01)
+    assert fused_ahead == pytest.approx(2.0, abs=0.05)
+    # A depth image is taken before the scan at the same instant, so every scan is fused.
+    assert len(ahead) == 4
+    assert all(fused == pytest.approx(2.0, abs=0.05) for fused, _ in ahead)

@@ -17,8 +17,9 @@ from rosbags.typesys import Stores, get_typestore
 from scanfuse.cli import main
 from scanfuse.ros.messages import transforms_from_msg
 from scanfuse.ros.tf import TransformStore
-from scanfuse.sim import SimConfig, SimError, record, scripted_path
+from scanfuse.sim import SimConfig, SimError, fusion_config, record, scripted_path
 from scanfuse.sim.cli import parse_backend, parse_resolution
+from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -180,3 +181,16 @@ def test_cli_reports_bad_options_in_one_line(tmp_path, capsys):
     with pytest.raises(SimError, match="unknown depth backend 'opengl'"):
         parse_backend('opengl')
     assert parse_resolution(' 848x480 ') == (848, 480)
+
+
+def test_fusion_config_of_the_simulation_matches_the_recorded_tf(bag):
+    messages = read_all(bag)
+    store = TransformStore()
+    store.add_all(transforms_from_msg(messages['/tf_static'][0]), static=True)
+    extrinsics = Extrinsics.from_config(fusion_config(CONFIG))
+    assert extrinsics.base_to_camera_optical.matrix == pytest.approx(
+        store.lookup('base_link', 'camera_depth_optical_frame'), abs=1e-9
+    )
+    assert extrinsics.base_to_laser.matrix == pytest.approx(
+        store.lookup('base_link', 'laser'), abs=1e-9
+    )

@@ -1,6 +1,6 @@
 """MuJoCo simulation of the paper's indoor worlds: robot, sensors, ground truth, bags."""
 
-from scanfuse.sim.drive import PATHS, Lap, Rotate, Straight, scripted_path
+from scanfuse.sim.drive import PATHS, FusedController, Lap, Rotate, Straight, scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record, static_transforms
 from scanfuse.sim.robot import RobotSpec, WheelOdometry
@@ -23,6 +23,7 @@ from scanfuse.sim.simulation import (
     Simulation,
     StateSample,
     Trace,
+    fusion_config,
 )
 from scanfuse.sim.snapshot import save_snapshot
 from scanfuse.sim.truth import TruthScanner
@@ -40,6 +41,7 @@ __all__ = [
     'DepthBackend',
     'DepthFrame',
     'DepthNoise',
+    'FusedController',
     'Lap',
     'LidarFrame',
     'LidarNoise',
@@ -59,6 +61,7 @@ __all__ = [
     'TruthScanner',
     'WheelOdometry',
     'World',
+    'fusion_config',
     'make_world',
     'record',
     'save_snapshot',

@@ -16,7 +16,11 @@ from scanfuse.sim.errors import SimError
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from scanfuse.pipeline import FusionPipeline
+    from scanfuse.scan import Scan
     from scanfuse.sim.simulation import Controller, Observation
+
+    Policy = Callable[[Scan, Observation], tuple[float, float]]
 
 
 @dataclass
@@ -79,6 +83,29 @@ class Lap:
         self._leg += 1
         self._anchor = (odometry.x, odometry.y, yaw0)
         return 0.0, 0.0
+
+
+@dataclass
+class FusedController:
+    """A controller that fuses each scan with the latest depth image before deciding.
+
+    `policy` gets the fused scan (the LiDAR scan alone until a depth image exists)
+    and the observation. Build `pipeline` from `fusion_config(sim_config)` so the
+    fusion uses the simulated robot's mounting.
+    """
+
+    policy: Policy
+    pipeline: FusionPipeline
+    last_fused: Scan | None = None
+
+    def __call__(self, observation: Observation) -> tuple[float, float]:
+        fused = observation.scan
+        if observation.depth is not None:
+            fused = self.pipeline.fuse(
+                observation.scan, observation.depth, observation.camera
+            ).fused
+        self.last_fused = fused
+        return self.policy(fused, observation)
 
 
 def _wrap(angle: float) -> float:

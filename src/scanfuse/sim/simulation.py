@@ -88,6 +88,32 @@ class SimConfig:
             raise SimError(msg)
 
 
+def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> FusionConfig:
+    """`base` (default: FusionConfig()) with the simulated robot's mounting and camera limits.
+
+    What the evaluation hands to a FusionPipeline for a controller's scans, so that the
+    fusion uses the same extrinsics as the recorded /tf_static.
+    """
+    robot = config.robot
+    camera = camera_profile(config.camera)
+    return (base or FusionConfig()).with_changes(
+        camera_x=robot.camera_x,
+        camera_y=0.0,
+        camera_height=robot.camera_height,
+        camera_roll=0.0,
+        camera_pitch=robot.camera_pitch,
+        camera_yaw=0.0,
+        lidar_x=robot.lidar_x,
+        lidar_y=0.0,
+        lidar_height=robot.lidar_height,
+        lidar_yaw=robot.lidar_yaw,
+        range_min=camera.range_min,
+        range_max=camera.range_max,
+        min_obstacle_height=config.min_obstacle_height,
+        max_obstacle_height=config.max_obstacle_height,
+    )
+
+
 @dataclass(frozen=True)
 class LidarFrame:
     """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose."""
