@@ -160,7 +160,7 @@ def _nearest_squared_loop(  # noqa: PLR0917 - numba kernels take plain arrays
     best[:] = np.inf
     for i in range(depth.size):
         z = depth[i]
-        if z < lo[i] or z > hi[i]:  # also drops NaN (float) and 0 (uint16, lo >= 1)
+        if not lo[i] <= z <= hi[i]:  # also drops NaN (float) and 0 (uint16, lo >= 1)
             continue
         z32 = np.float32(z)
         x = a_x[i] * z32 + b_x
