@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from scanfuse.camera import CameraModel
 from scanfuse.ros.messages import (
@@ -228,18 +229,15 @@ def write_bag(
 
 def _write_ros1(path: Path, messages: list[tuple[str, str, int, bytes]]) -> Path:
     ros2 = typestore()
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    # Noetic's store lacks tf2_msgs; its TFMessage is one array of TransformStamped.
+    noetic.register(get_types_from_msg('geometry_msgs/TransformStamped[] transforms', TF_MESSAGE))
     with Ros1Writer(path) as writer:
         connections = {}
         for topic, msgtype, _, _ in messages:
             if topic not in connections:
-                # ROS 1 definitions of the ROS 2 types (Noetic's store lacks tf2_msgs).
-                msgdef, md5sum = ros2.generate_msgdef(msgtype, ros_version=1)
                 connections[topic] = writer.add_connection(
-                    topic,
-                    msgtype,
-                    msgdef=msgdef,
-                    md5sum=md5sum,
-                    latching=int(topic == '/tf_static'),
+                    topic, msgtype, typestore=noetic, latching=int(topic == '/tf_static')
                 )
         for topic, msgtype, log_time, raw in messages:
             writer.write(connections[topic], log_time, bytes(ros2.cdr_to_ros1(raw, msgtype)))

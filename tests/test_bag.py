@@ -1,0 +1,349 @@
+"""`fuse_bag` and `scanfuse bag` on real bags written with rosbags into tmp_path.
+
+The scene (scanfuse.ros.synthetic): a wall at x = 2 m seen by the LiDAR (0.3 m up),
+a 0.2 m high box whose front face is at x = 1.2 m, |y| <= 0.15 m, below the LiDAR's
+plane, and a depth camera 0.45 m up pitched 20 degrees down, all published on
+/tf_static. 2 s of 10 Hz scans and 30 Hz depth with no depth between 0.5 s and 0.9 s.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+from pathlib import Path  # noqa: TC003 - used at run time by pytest fixtures
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from scanfuse import BagError, FusionConfig, MessageError, TransformError
+from scanfuse.cli import main
+from scanfuse.ros.bag import Storage, fuse_bag
+from scanfuse.ros.messages import camera_to_cdr
+from scanfuse.ros.synthetic import Scene, scene_messages, write_bag, write_scene_bag
+
+GAP = (0.5, 0.9)
+# Scans at 0.0, 0.1, ..., 1.9 s; frames at 1/90 s + k/30 s, none in [0.5, 0.9).
+# Scan 0.5: frame 0.4778 is 22 ms away -> paired. Scan 0.6: nearest frames 0.4778 (122 ms)
+# and 0.9111 (311 ms) -> unpaired; 0.7 unpaired; 0.8: 0.9111 is 111 ms away -> unpaired.
+SCANS, PASSED = 20, 3
+HUMBLE = get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _read_all(path: Path):
+    """(topic, log time, raw bytes) of every message, read with rosbags."""
+    with AnyReader([path]) as reader:
+        return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+
+
+def _digest(path: Path) -> str:
+    files = sorted(p for p in path.rglob('*') if p.is_file()) if path.is_dir() else [path]
+    return hashlib.sha256(b''.join(p.read_bytes() for p in files)).hexdigest()
+
+
+@pytest.fixture(scope='module', params=['mcap', 'sqlite3'])
+def fused(request, tmp_path_factory):
+    """A scene bag in one storage, fused into the other storage."""
+    folder = tmp_path_factory.mktemp(request.param)
+    source = write_scene_bag(folder / 'in', Scene(depth_gap=GAP), storage=request.param)
+    before = _digest(source)
+    out_storage = 'sqlite3' if request.param == 'mcap' else 'mcap'
+    report = fuse_bag(source, folder / 'out', storage=out_storage)
+    assert _digest(source) == before  # the input is never modified
+    return source, folder / 'out', report
+
+
+def test_report_counts(fused):
+    source, _, report = fused
+    inputs = len(_read_all(source))
+    assert report.messages_read == inputs
+    assert report.scans == SCANS
+    assert report.scans_passed_through == PASSED
+    assert report.scans_paired == SCANS - PASSED
+    # every input message, one fused scan per LiDAR scan, one depth scan per paired scan
+    assert report.messages_written == inputs + SCANS + (SCANS - PASSED)
+    assert report.extrinsics_source.startswith('TF')
+    assert len(report.scan_times_s) == SCANS - PASSED
+
+
+def test_every_input_message_is_kept_byte_identical(fused):
+    source, output, _ = fused
+    written = _read_all(output)
+    originals = _read_all(source)
+    kept = [item for item in written if item[0] not in {'/scan_fused', '/scan_depth'}]
+    assert sorted(kept) == sorted(originals)
+
+
+def test_output_is_a_version_8_bag_of_the_requested_storage(fused):
+    source, output, report = fused
+    metadata = yaml.safe_load((output / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert metadata['version'] == 8
+    assert metadata['storage_identifier'] == report.storage.value
+    assert report.storage.value != ('mcap' if source.joinpath('in.mcap').exists() else 'sqlite3')
+    assert not list(output.parent.glob('.out.*'))  # no staging folder left behind
+
+
+def _scans(path: Path, topic: str):
+    with AnyReader([path]) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        return [
+            (t, bytes(raw), reader.deserialize(raw, c.msgtype))
+            for c, t, raw in reader.messages(connections=connections)
+        ]
+
+
+def test_fused_scans_match_the_lidar(fused):
+    source, output, _ = fused
+    lidar = _scans(source, '/scan')
+    fused_scans = _scans(output, '/scan_fused')
+    assert len(fused_scans) == len(lidar) == SCANS
+    for (lidar_time, lidar_raw, scan), (time, raw, out) in zip(lidar, fused_scans, strict=True):
+        assert time == lidar_time
+        assert out.header.stamp == scan.header.stamp
+        assert out.header.frame_id == scan.header.frame_id
+        assert (out.angle_min, out.angle_increment) == (scan.angle_min, scan.angle_increment)
+        assert len(out.ranges) == len(scan.ranges)
+        valid = (
+            np.isfinite(scan.ranges)
+            & (scan.ranges >= scan.range_min)
+            & (scan.ranges <= scan.range_max)
+        )
+        assert np.all(out.ranges[valid] <= scan.ranges[valid])
+        seconds = (scan.header.stamp.sec - 1_700_000_000) + scan.header.stamp.nanosec / 1e9
+        if 0.55 < seconds < 0.85:  # no depth frame within 0.1 s: passed through unchanged
+            assert raw == lidar_raw
+
+
+def test_low_box_appears_in_the_fused_scan(fused):
+    _, output, _ = fused
+    scene = Scene()
+    angles = scene.lidar_angles()
+    for _, _, out in _scans(output, '/scan_fused')[:3]:
+        # Slots whose ray meets the box's front face (|theta| < atan(0.15 / 1.2) = 7.1 deg,
+        # away from its edges): the box at 1.2 / cos(theta), not the wall at 2 / cos(theta).
+        inside = np.abs(angles) < math.radians(5.0)
+        expected = scene.box_x / np.cos(angles[inside])
+        np.testing.assert_allclose(out.ranges[inside], expected, atol=0.05 + 0.02 * 1.2)
+        # Outside the camera's view (half angle atan(80 / 100) = 38.7 deg) the LiDAR's wall.
+        outside = np.abs(angles) > math.radians(45.0)
+        np.testing.assert_array_equal(out.ranges[outside], scene.lidar_ranges()[outside])
+
+
+def test_depth_scan_has_the_lidar_grid_and_stamps(fused):
+    _, output, _ = fused
+    fused_scans = {t: msg for t, _, msg in _scans(output, '/scan_fused')}
+    depth = _scans(output, '/scan_depth')
+    assert len(depth) == SCANS - PASSED
+    for time, _, msg in depth:
+        assert msg.header.stamp == fused_scans[time].header.stamp
+        assert len(msg.ranges) == Scene().readings
+
+
+def test_output_is_readable_by_the_mcap_library(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.5), storage='sqlite3')
+    fuse_bag(source, tmp_path / 'out', storage='mcap')
+    originals = {(topic, t): raw for topic, t, raw in _read_all(source)}
+    seen = 0
+    fused = 0
+    with (tmp_path / 'out' / 'out.mcap').open('rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            if channel.topic == '/scan_fused':
+                fused += 1
+                assert len(decoded.ranges) == Scene().readings
+                assert decoded.header.frame_id == 'laser'
+                continue
+            if channel.topic == '/scan_depth':
+                continue
+            assert message.data == originals[channel.topic, message.log_time]
+            seen += 1
+    assert seen == len(originals)
+    assert fused == 5
+
+
+def test_ros1_input_is_converted_to_ros2(tmp_path):
+    source = write_scene_bag(tmp_path / 'in.bag', Scene(duration=0.5), storage='ros1')
+    report = fuse_bag(source, tmp_path / 'out')
+    assert report.scans == report.scans_paired == 5
+    noetic_messages = {}
+    with AnyReader([source]) as reader:
+        for c, t, raw in reader.messages():
+            noetic_messages[c.topic, t] = reader.deserialize(raw, c.msgtype)
+    with AnyReader([tmp_path / 'out']) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types['/tf_static'] == 'tf2_msgs/msg/TFMessage'
+        count = 0
+        for c, t, raw in reader.messages():
+            if c.topic in {'/scan_fused', '/scan_depth'}:
+                continue
+            message = HUMBLE.deserialize_cdr(raw, c.msgtype)
+            original = noetic_messages[c.topic, t]
+            if c.topic == '/scan':
+                np.testing.assert_array_equal(message.ranges, original.ranges)
+                assert message.header.stamp == original.header.stamp
+            elif c.topic == '/camera/depth/image_raw':
+                np.testing.assert_array_equal(message.data, original.data)
+            elif c.topic == '/camera/depth/camera_info':
+                np.testing.assert_array_equal(message.k, original.K)
+            count += 1
+        assert count == len(noetic_messages)
+
+
+def test_extrinsics_fall_back_to_parameters_with_a_warning(tmp_path, caplog):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_tf=False))
+    with caplog.at_level(logging.WARNING, logger='scanfuse.ros.bag'):
+        report = fuse_bag(source, tmp_path / 'out')
+    assert report.extrinsics_source == 'parameters'
+    assert "extrinsics from the parameters, not TF: frame 'base_link' is not in the TF tree" in (
+        caplog.text
+    )
+
+
+def test_require_tf_without_tf_is_an_error(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_tf=False))
+    with pytest.raises(TransformError, match=r'--require-tf: no extrinsics from TF'):
+        fuse_bag(source, tmp_path / 'out', require_tf=True)
+    assert not (tmp_path / 'out').exists()
+
+
+def test_use_tf_false_takes_the_parameters(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    report = fuse_bag(source, tmp_path / 'out', config=FusionConfig(use_tf=False))
+    assert report.extrinsics_source == 'parameters'
+
+
+def test_output_exists_is_an_error_unless_overwrite(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    (tmp_path / 'out').mkdir()
+    (tmp_path / 'out' / 'keep.txt').write_text('mine')
+    with pytest.raises(BagError, match=r'out exists already; choose another path or pass'):
+        fuse_bag(source, tmp_path / 'out')
+    assert (tmp_path / 'out' / 'keep.txt').read_text() == 'mine'
+    fuse_bag(source, tmp_path / 'out', overwrite=True)
+    assert not (tmp_path / 'out' / 'keep.txt').exists()
+    assert (tmp_path / 'out' / 'metadata.yaml').exists()
+
+
+def test_output_inside_input_is_refused(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    with pytest.raises(BagError, match=r'overlaps the input bag'):
+        fuse_bag(source, source, overwrite=True)
+    with pytest.raises(BagError, match=r'overlaps the input bag'):
+        fuse_bag(source, source / 'out')
+
+
+def test_missing_input_and_bad_storage(tmp_path):
+    with pytest.raises(BagError, match=r'input bag .*nothing does not exist'):
+        fuse_bag(tmp_path / 'nothing', tmp_path / 'out')
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    with pytest.raises(BagError, match=r"storage 'zip' is not supported; use one of mcap, sqlite3"):
+        fuse_bag(source, tmp_path / 'out', storage='zip')
+    with pytest.raises(BagError, match=r'folder .*missing of the output bag does not exist'):
+        fuse_bag(source, tmp_path / 'missing' / 'out')
+
+
+def test_missing_topic_lists_what_exists(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    with pytest.raises(
+        BagError,
+        match=r'LaserScan topic /nope is not in the bag; sensor_msgs/msg/LaserScan topics: '
+        r'/scan \(sensor_msgs/msg/LaserScan\); all topics: /camera/depth/camera_info',
+    ):
+        fuse_bag(source, tmp_path / 'out', scan_topic='/nope')
+    with pytest.raises(BagError, match=r'depth topic /scan is a sensor_msgs/msg/LaserScan'):
+        fuse_bag(source, tmp_path / 'out', depth_topic='/scan')
+    with pytest.raises(BagError, match=r'CameraInfo topic /scan is a sensor_msgs/msg/LaserScan'):
+        fuse_bag(source, tmp_path / 'out', camera_info_topic='/scan')
+
+
+def test_no_camera_info_is_an_error(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_camera_info=False))
+    with pytest.raises(BagError, match=r'no CameraInfo topic \(sensor_msgs/msg/CameraInfo\)'):
+        fuse_bag(source, tmp_path / 'out')
+
+
+def test_several_scan_topics_need_a_choice(tmp_path):
+    messages = scene_messages(Scene(duration=0.3))
+    messages += [('/scan2', m, t, raw) for topic, m, t, raw in messages if topic == '/scan']
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(
+        BagError,
+        match=r'several LaserScan topics in bag .*: /scan .*, /scan2 .*; choose one with --scan',
+    ):
+        fuse_bag(source, tmp_path / 'out', config=FusionConfig(scan_topic='/other'))
+    report = fuse_bag(source, tmp_path / 'out', scan_topic='/scan2')
+    assert report.topics.scan == '/scan2'
+
+
+def test_depth_image_of_another_size_than_camera_info_is_rejected(tmp_path):
+    scene = Scene(duration=0.3)
+    small = scene.camera.__class__.from_intrinsics(80, 60, 50, 50, 40, 30, frame_id='o')
+    messages = [
+        (topic, m, t, camera_to_cdr(small, stamp_ns=t) if topic.endswith('camera_info') else raw)
+        for topic, m, t, raw in scene_messages(scene)
+    ]
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(MessageError, match=r'is 160x120 but its CameraInfo says 80x60'):
+        fuse_bag(source, tmp_path / 'out')
+    assert not (tmp_path / 'out').exists()
+    assert not list(tmp_path.glob('.out.*'))
+
+
+def test_existing_fused_topic_in_input_is_an_error(tmp_path):
+    messages = scene_messages(Scene(duration=0.3))
+    messages += [('/scan_fused', m, t, raw) for topic, m, t, raw in messages if topic == '/scan']
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(BagError, match=r'already has /scan_fused; set fused_topic'):
+        fuse_bag(source, tmp_path / 'out')
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_truncated_bag_is_a_bag_error(tmp_path, storage):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.5), storage=storage)
+    (data,) = [p for p in source.iterdir() if p.suffix in {'.mcap', '.db3'}]
+    data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
+    with pytest.raises(BagError, match=r'cannot read bag .*in'):
+        fuse_bag(source, tmp_path / 'out')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_corrupt_single_file_is_a_bag_error(tmp_path):
+    junk = tmp_path / 'junk.mcap'
+    junk.write_bytes(b'\x89MCAP0\r\n' + b'\x00' * 100)
+    with pytest.raises(BagError, match=r'cannot read bag .*junk\.mcap'):
+        fuse_bag(junk, tmp_path / 'out')
+
+
+def test_single_mcap_file_input(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    report = fuse_bag(source / 'in.mcap', tmp_path / 'out')
+    assert report.scans == 3
+
+
+def test_cli_bag_command(tmp_path, capsys):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    params = tmp_path / 'params.yaml'
+    params.write_text(
+        yaml.safe_dump({'scanfuse': {'ros__parameters': {'fused_topic': '/fused'}}}),
+        encoding='utf-8',
+    )
+    argv = ['bag', str(source), str(tmp_path / 'out'), '--params', str(params)]
+    assert main([*argv, '--storage', 'sqlite3', '--no-depth-scan']) == 0
+    assert 'scans paired with depth' in capsys.readouterr().out
+    topics = {topic for topic, _, _ in _read_all(tmp_path / 'out')}
+    assert '/fused' in topics
+    assert '/scan_depth' not in topics
+    assert (tmp_path / 'out' / 'out.db3').exists()
+    assert main(argv) == 1
+    assert 'exists already' in ' '.join(capsys.readouterr().err.split())
+    assert main([*argv, '--overwrite']) == 0
+    assert (tmp_path / 'out' / 'out.mcap').exists()
+
+
+def test_storage_enum_values():
+    assert [s.value for s in Storage] == ['mcap', 'sqlite3']
