@@ -161,3 +161,13 @@ def test_floor_guard_margin_keeps_points_just_short_of_the_floor() -> None:
         guard = FloorGuard(camera_height=height, camera_pitch=pitch, margin=margin)
         scan = row_scan(depth, CAMERA, scan_row=v, range_min=0.1, range_max=10.0, floor_guard=guard)
         assert np.isfinite(scan.ranges).any() == reported
+
+
+@pytest.mark.parametrize('dtype', [np.uint16, np.float32])
+def test_margin_wider_than_the_floor_distance_cuts_every_pixel(dtype: type) -> None:
+    # 0.1 m up, looking 60 deg down: the floor is about 0.11 m away straight ahead, less
+    # than the 0.25 m margin, so every measured pixel of the row counts as floor.
+    guard = FloorGuard(camera_height=0.1, camera_pitch=math.radians(60.0), margin=0.25)
+    depth = np.full((CAMERA.height, CAMERA.width), 3, dtype=dtype)  # 3 mm or 3 m
+    scan = row_scan(depth, CAMERA, range_min=0.0, range_max=5.0, floor_guard=guard)
+    assert np.all(scan.ranges == np.inf)

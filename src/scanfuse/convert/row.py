@@ -330,7 +330,8 @@ def row_plan(
             return np.asarray(_code_range(codes, range_per_depth) >= floor_cut)
 
         first_floor = _smallest_code(on_floor, (rows, camera.width))
-        floor_code = np.minimum(first_floor - 1, highest).astype(np.uint16)
+        # 0 when even the nearest code is on the floor (a margin larger than the limit).
+        floor_code = np.clip(np.minimum(first_floor - 1, highest), 0, None).astype(np.uint16)
 
     pixel_slots = pixel_range_per_depth = None
     if not rows_alike:
