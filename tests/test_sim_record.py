@@ -194,3 +194,16 @@ def test_fusion_config_of_the_simulation_matches_the_recorded_tf(bag):
     assert extrinsics.base_to_laser.matrix == pytest.approx(
         store.lookup('base_link', 'laser'), abs=1e-9
     )
+
+
+def test_scanfuse_bag_fuses_the_recording_without_options(bag, tmp_path):
+    out = tmp_path / 'fused'
+    assert main(['bag', str(bag), str(out)]) == 0
+    messages = read_all(out)
+    fused, lidar = messages['/scan_fused'][0], messages['/scan'][0]
+    # Within 1.7 degrees of straight ahead at the start, the LiDAR sees only the wall 2.8 m
+    # away; the fusion adds the boards 2.0 m away. (At 256 px a pixel column is 0.44 degrees
+    # wide, so not every 0.33 degree LiDAR slot holds a depth pixel: take the nearest.)
+    ahead = slice(535, 546)
+    assert np.nanmin(lidar.ranges[ahead]) == pytest.approx(2.8, abs=0.05)
+    assert np.nanmin(fused.ranges[ahead]) == pytest.approx(2.0, abs=0.15)

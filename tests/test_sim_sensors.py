@@ -226,16 +226,26 @@ def test_lidar_noise_and_dropouts_match_the_model():
     assert abs(error.mean()) < 4 * noise.sigma / math.sqrt(error.size)
 
 
-def test_depth_edges_flag_both_sides_of_a_jump_only():
+def test_depth_edges_flag_the_far_side_of_a_jump_only():
     depth = np.full((5, 6), 2.0)
     depth[:, 3:] = 1.0  # a near object from column 3 on
     edges = depth_edges(depth, 0.05)
     expected = np.zeros((5, 6), dtype=bool)
-    expected[:, 2:4] = True
+    expected[:, 2] = True  # the background pixel next to the object
     assert np.array_equal(edges, expected)
-    # A gentle slope (1 % per pixel) is no edge.
+    # A one-pixel-high board in front of a wall keeps its depth; the wall around it does not.
+    board = np.full((5, 4), 2.8)
+    board[2, :] = 2.0
+    edges = depth_edges(board, 0.05)
+    assert not edges[2].any()
+    assert edges[1].all()
+    assert edges[3].all()
+    # A gentle slope (1 % per pixel) is no edge; next to no return (NaN) is.
     slope = np.tile(2.0 * 1.01 ** np.arange(6), (5, 1))
     assert not depth_edges(slope, 0.05).any()
+    hole = np.full((3, 3), 2.0)
+    hole[1, 1] = np.nan
+    assert depth_edges(hole, 0.05).sum() == 5  # the hole and its four neighbours
 
 
 def test_depth_image_is_millimetres_with_zero_outside_range_and_at_edges():
@@ -248,8 +258,8 @@ def test_depth_image_is_millimetres_with_zero_outside_range_and_at_edges():
     ]
     stepped = np.array([[2.0, 2.0, 2.0, 1.0, 1.0, 1.0]] * 3)
     noisy = depth_image(stepped, profile, DepthNoise(k=0.0), RNG)
-    assert noisy[:, [2, 3]].tolist() == [[0, 0]] * 3
-    assert noisy[:, [0, 1, 4, 5]].tolist() == [[2000, 2000, 1000, 1000]] * 3
+    assert noisy[:, 2].tolist() == [0] * 3
+    assert noisy[:, [0, 1, 3, 4, 5]].tolist() == [[2000, 2000, 1000, 1000, 1000]] * 3
 
 
 def test_renderer_depth_agrees_with_ray_casting():

@@ -10,9 +10,9 @@ Noise (switchable, seeded):
   nearer than range_min -Inf (REP-117).
 - Depth: Gaussian noise along the optical axis with sigma = k Z^2, k = 0.01 /m
   (1 % of Z at 1 m, 2 % at 2 m, the growth of a stereo camera's error with
-  distance); pixels at depth edges (a 4-neighbour differs by more than 5 % of
-  the nearer depth) are invalid (0), as are pixels outside [range_min,
-  range_max]. Images are 16UC1 millimetres (REP-118), 0 = no measurement.
+  distance); pixels on the far side of a depth edge (a 4-neighbour nearer by
+  more than 5 % of its depth) are invalid (0), as are pixels outside
+  [range_min, range_max]. Images are 16UC1 millimetres (REP-118), 0 = no measurement.
 """
 
 from __future__ import annotations
@@ -238,9 +238,12 @@ def optical_rays(camera: CameraModel) -> tuple[Matrix, npt.NDArray[np.float64]]:
 
 
 def depth_edges(depth: npt.NDArray[np.float64], jump: float) -> npt.NDArray[np.bool_]:
-    """Pixels with a 4-neighbour whose depth differs by more than `jump` times the nearer depth.
+    """Pixels behind a depth edge: a 4-neighbour is nearer by more than `jump` times its depth.
 
-    A pixel next to one with no return (NaN) is an edge too.
+    Only the far side of a jump is flagged, where a stereo camera's matching mixes
+    foreground and background; the near side keeps its depth, so thin foreground
+    objects (a shelf board a pixel or two high) stay visible. A pixel next to one
+    with no return (NaN) is flagged too.
     """
     edges = np.zeros(depth.shape, dtype=bool)
     with np.errstate(invalid='ignore'):
@@ -249,10 +252,10 @@ def depth_edges(depth: npt.NDArray[np.float64], jump: float) -> npt.NDArray[np.b
             (depth[:, :-1], depth[:, 1:], edges[:, :-1], edges[:, 1:]),
         ):
             nearer = np.fmin(first, second)
-            step = np.abs(first - second)
-            big = (step > jump * nearer) | (np.isnan(step) & ~np.isnan(nearer))
-            np.logical_or(first_edges, big, out=first_edges)  # views into `edges`
-            np.logical_or(second_edges, big, out=second_edges)
+            big = (np.abs(first - second) > jump * nearer) | (np.isnan(first) != np.isnan(second))
+            # views into `edges`: flag whichever of the pair is farther (or has no return)
+            np.logical_or(first_edges, big & ~(first <= second), out=first_edges)
+            np.logical_or(second_edges, big & ~(second <= first), out=second_edges)
     return edges
 
 
