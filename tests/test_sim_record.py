@@ -207,3 +207,33 @@ def test_scanfuse_bag_fuses_the_recording_without_options(bag, tmp_path):
     ahead = slice(535, 546)
     assert np.nanmin(lidar.ranges[ahead]) == pytest.approx(2.8, abs=0.05)
     assert np.nanmin(fused.ranges[ahead]) == pytest.approx(2.0, abs=0.15)
+
+
+def test_a_failing_run_leaves_no_partial_bag(tmp_path):
+    def broken(observation):
+        msg = 'controller failed'
+        raise RuntimeError(msg)
+
+    out = tmp_path / 'broken.mcap'
+    with pytest.raises(RuntimeError, match='controller failed'):
+        record(CONFIG, broken, 1.0, out)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_mounting_options_reach_the_recorded_tf(tmp_path):
+    out = tmp_path / 'mount.mcap'
+    code = main(
+        [
+            'simulate', '--world', 'room', '--path', 'rotate', '--duration', '0.2',
+            '--out', str(out), '--resolution', '256x144', '--depth-rate', '5',
+            '--lidar-height', '0.2', '--camera-height', '0.6', '--camera-pitch', '30',
+        ]
+    )  # fmt: skip
+    assert code == 0
+    store = TransformStore()
+    store.add_all(transforms_from_msg(read_all(out)['/tf_static'][0]), static=True)
+    assert store.lookup('base_link', 'laser')[2, 3] == pytest.approx(0.2)
+    optical = store.lookup('base_link', 'camera_depth_optical_frame')
+    assert optical[2, 3] == pytest.approx(0.6)
+    pitch = math.radians(30.0)
+    assert optical[:3, 2] == pytest.approx([math.cos(pitch), 0.0, -math.sin(pitch)])

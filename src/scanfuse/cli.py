@@ -106,6 +106,9 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
     snapshot: Annotated[
         Path | None, typer.Option(help='PNG of the world from above with the first scans')
     ] = None,
+    lidar_height: Annotated[float, typer.Option(help='LiDAR height above the floor, m')] = 0.30,
+    camera_height: Annotated[float, typer.Option(help='camera height above the floor, m')] = 0.45,
+    camera_pitch: Annotated[float, typer.Option(help='camera pitch, degrees down')] = 20.0,
 ) -> None:
     """Simulate a robot in an indoor world and record its sensors and ground truth as a bag."""
     from scanfuse.sim.cli import run_simulate  # noqa: PLC0415
@@ -123,9 +126,9 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
         noise=not no_noise,
         depth_backend=depth_backend,
         snapshot=snapshot,
+        mounting=(lidar_height, camera_height, camera_pitch),
         console=Console(),
     )
-
 
 
 @app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})
@@ -143,6 +146,7 @@ def node(
     code = node_main([*args, *ctx.args])
     if code:
         raise typer.Exit(code)
+
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""

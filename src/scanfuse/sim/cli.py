@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from typing import TYPE_CHECKING
 
@@ -11,6 +12,7 @@ from rich.table import Table
 from scanfuse.sim.drive import scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record
+from scanfuse.sim.robot import RobotSpec
 from scanfuse.sim.sensors import DepthBackend
 from scanfuse.sim.simulation import SimConfig
 
@@ -53,7 +55,15 @@ def run_simulate(
     depth_backend: str,
     snapshot: Path | None,
     console: Console,
+    mounting: tuple[float, float, float] = (0.30, 0.45, 20.0),
 ) -> RecordSummary:
+    """Record one run; `mounting` is (LiDAR height m, camera height m, camera pitch degrees)."""
+    lidar_height, camera_height, camera_pitch = mounting
+    robot = RobotSpec(
+        lidar_height=lidar_height,
+        camera_height=camera_height,
+        camera_pitch=math.radians(camera_pitch),
+    )
     config = SimConfig(
         world=world,
         seed=seed,
@@ -63,6 +73,7 @@ def run_simulate(
         depth_rate=depth_rate,
         noise=noise,
         depth_backend=parse_backend(depth_backend),
+        robot=robot,
     )
     controller = scripted_path(path)
     columns = (

@@ -312,8 +312,13 @@ def record(
             sink.open(simulation.robot)
             simulation.run(duration, controller, sink, progress)
     except WriterError as err:
+        shutil.rmtree(bag_dir, ignore_errors=True)
         msg = f'cannot write the bag {out}: {err}'
         raise SimError(msg) from err
+    except BaseException:
+        # An interrupted or failed run leaves no half-written bag behind.
+        shutil.rmtree(bag_dir, ignore_errors=True)
+        raise
     finally:
         simulation.close()
     wall_time = time.perf_counter() - started
