@@ -12,6 +12,7 @@ from scanfuse.sim import (
     FusedController,
     Lap,
     Observation,
+    Pose2D,
     SimConfig,
     SimError,
     Simulation,
@@ -145,3 +146,29 @@ def test_fused_controller_sees_the_shelf_boards_the_lidar_misses():
     # A depth image is taken before the scan at the same instant, so every scan is fused.
     assert len(ahead) == 4
     assert all(fused == pytest.approx(2.0, abs=0.05) for fused, _ in ahead)
+
+
+def test_placing_the_robot_moves_it_and_restarts_odometry():
+    simulation = Simulation(SimConfig(world='room', **LOW))
+    simulation.run(1.0, scripted_path('straight'), Trace())
+    assert simulation.odometry.x > 0.2
+    simulation.place(Pose2D(1.0, 0.5, math.pi / 2))
+    pose = simulation.true_pose()
+    assert (pose.x, pose.y, pose.yaw) == pytest.approx((1.0, 0.5, math.pi / 2))
+    assert (simulation.odometry.x, simulation.odometry.y) == (0.0, 0.0)
+    trace = Trace()
+    simulation.run(1.0, scripted_path('straight'), trace)
+    # Facing +y now: driving forward increases y, and odometry counts from the new place.
+    assert trace.states[-1].position[1] > 0.5 + 0.2
+    assert trace.states[-1].odometry.x == pytest.approx(
+        trace.states[-1].position[1] - 0.5, abs=0.05
+    )
+
+
+def test_a_40_hz_lidar_is_sampled_at_40_hz():
+    config = SimConfig(world='room', lidar='hokuyo-ust10lx', **LOW)
+    trace = Trace()
+    Simulation(config).run(0.5, scripted_path('rotate'), trace)
+    stamps = np.array([frame.stamp_ns for frame in trace.lidar])
+    assert len(stamps) == 21  # 0, 25, ..., 500 ms
+    assert np.diff(stamps) == pytest.approx(np.full(20, 25_000_000), abs=2_000_000)

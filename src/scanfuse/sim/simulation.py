@@ -360,11 +360,14 @@ class Simulation:
         self.data.ctrl[:] = (left, right)
 
     def place(self, pose: Pose2D) -> None:
-        """Put the robot at `pose` (at rest) and restart its odometry there."""
+        """Put the robot at `pose` (at rest); its odometry restarts there at (0, 0, 0)."""
         self.data.qpos[0:3] = (pose.x, pose.y, self.data.qpos[2])
         self.data.qpos[3:7] = (math.cos(pose.yaw / 2), 0.0, 0.0, math.sin(pose.yaw / 2))
         self.data.qvel[:] = 0.0
+        self.data.ctrl[:] = 0.0
         mujoco.mj_forward(self.model, self.data)
+        self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
+        self._update_odometry(0.0)
 
     # ------------------------------------------------------------ sensing
 
