@@ -68,7 +68,9 @@ def test_inverted_limits_are_rejected():
 
 def test_missing_section_lists_what_the_file_has(tmp_path):
     path = write(tmp_path, 'other_node:\n  ros__parameters: {}\n')
-    with pytest.raises(ConfigError, match=r'no "scanfuse: ros__parameters:" section \(found: other_node\)'):
+    with pytest.raises(
+        ConfigError, match=r'no "scanfuse: ros__parameters:" section \(found: other_node\)'
+    ):
         FusionConfig.from_ros_params(path)
 
 
@@ -93,3 +95,8 @@ def test_shipped_example_parameter_file_holds_every_parameter():
     params = yaml.safe_load(path.read_text())['scanfuse']['ros__parameters']
     assert set(params) == set(FusionConfig.model_fields) - {'scan_row'}
     FusionConfig.from_ros_params(path)
+
+
+def test_d2l_compat_refuses_an_off_centre_row():
+    with pytest.raises(ConfigError, match='leave scan_row unset or turn d2l_compat off'):
+        FusionConfig.from_dict({'d2l_compat': True, 'scan_row': 10})

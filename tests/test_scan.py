@@ -65,7 +65,9 @@ def test_slot_of_handles_both_conventions(angle_min):
 
 def test_slot_of_negative_increment():
     grid = AngleGrid(1.0, -0.5, 5)  # 1.0, 0.5, 0.0, -0.5, -1.0
-    np.testing.assert_array_equal(grid.slot_of(np.array([1.0, 0.45, -0.1, -1.2, 2.0])), [0, 1, 2, 4, -1])
+    np.testing.assert_array_equal(
+        grid.slot_of(np.array([1.0, 0.45, -0.1, -1.2, 2.0])), [0, 1, 2, 4, -1]
+    )
 
 
 def test_slot_of_outside_partial_grid_is_minus_one():

@@ -103,6 +103,12 @@ class FusionConfig(BaseModel):
                 f'max_obstacle_height ({self.max_obstacle_height})'
             )
             raise ValueError(msg)
+        if self.d2l_compat and self.scan_row is not None:
+            msg = (
+                'd2l_compat reproduces depthimage_to_laserscan, whose band is always centred '
+                'on the principal point: leave scan_row unset or turn d2l_compat off'
+            )
+            raise ValueError(msg)
         return self
 
     @classmethod

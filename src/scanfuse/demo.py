@@ -143,7 +143,7 @@ def run_demo(out: Path, console: Console) -> Path:
         table.add_row(label, *summarize(scan))
     console.print(table)
     console.print(
-        'The paper\'s centre row of a camera looking 45 deg down meets the carpet: without '
+        "The paper's centre row of a camera looking 45 deg down meets the carpet: without "
         'the floor guard the floor becomes an obstacle (its Figure 10).'
     )
     console.print(f'figure: [bold]{figure}[/]')

@@ -66,7 +66,8 @@ class FusionPipeline:
                 camera_pitch=self.config.camera_pitch,
                 margin=self.config.floor_margin,
             )
-            if self.config.floor_guard
+            # depthimage_to_laserscan has no floor guard; compat mode reproduces it as is.
+            if self.config.floor_guard and not self.config.d2l_compat
             else None
         )
         self._plans: dict[tuple[AngleGrid, AngleGrid], Plan] = {}

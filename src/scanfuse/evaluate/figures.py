@@ -84,3 +84,139 @@ def depth_and_scans_figure(
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
+
+
+# ---------------------------------------------------------------- evaluation figures
+
+LIDAR_COLOR = 'tab:red'
+FUSED_COLOR = 'tab:blue'
+
+
+@dataclass(frozen=True)
+class WorldView:
+    """A top-down snapshot of a simulated world: footprints, robot pose, and scans from it."""
+
+    title: str
+    footprints: list[tuple[str, npt.NDArray[np.float64]]]  # (kind, polygon) in the world frame
+    bounds: tuple[float, float, float, float]
+    robot_xy: tuple[float, float]
+    robot_yaw: float
+    robot_radius: float
+
+
+def _draw_footprints(axes: plt.Axes, view: WorldView) -> None:
+    for kind, polygon in view.footprints:
+        color = '0.75' if kind == 'wall' else '0.45'
+        axes.fill(polygon[:, 0], polygon[:, 1], color=color, alpha=0.6, linewidth=0)
+    robot = plt.Circle(view.robot_xy, view.robot_radius, fill=False, color='black', linewidth=1.5)
+    axes.add_patch(robot)
+    tip = (
+        view.robot_xy[0] + view.robot_radius * np.cos(view.robot_yaw),
+        view.robot_xy[1] + view.robot_radius * np.sin(view.robot_yaw),
+    )
+    axes.plot([view.robot_xy[0], tip[0]], [view.robot_xy[1], tip[1]], color='black')
+    x_min, x_max, y_min, y_max = view.bounds
+    axes.set_xlim(x_min - 0.3, x_max + 0.3)
+    axes.set_ylim(y_min - 0.3, y_max + 0.3)
+    axes.set_aspect('equal')
+    axes.set_xlabel('x (m, world)')
+    axes.set_ylabel('y (m, world)')
+    axes.grid(visible=True, alpha=0.3)
+
+
+def world_scans_figure(view: WorldView, layers: list[ScanLayer], path: Path) -> Path:
+    """The world from above with scans drawn where they land (the paper's Figures 22-24).
+
+    Obstacles are grey (light: walls), each layer's points in its colour; the
+    layers' `origin_xy`/`origin_yaw` place them in the world frame.
+    """
+    figure, axes = plt.subplots(figsize=(8, 7), layout='constrained')
+    _draw_footprints(axes, view)
+    for layer in layers:
+        points = scan_points(layer)
+        axes.scatter(points[:, 0], points[:, 1], s=layer.size, c=layer.color, label=layer.label)
+    axes.legend(loc='upper left', fontsize=8)
+    axes.set_title(view.title)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+def _map_image(
+    probability: npt.NDArray[np.float64], occupied: float, free: float
+) -> npt.NDArray[np.float64]:
+    """Greyscale as map_server shows it: occupied black, free white, unknown grey."""
+    image = np.full(probability.shape, 0.8)
+    image[probability <= free] = 1.0
+    image[probability >= occupied] = 0.0
+    return image
+
+
+def maps_figure(
+    panels: list[tuple[str, npt.NDArray[np.float64]]],
+    truth: npt.NDArray[np.bool_],
+    extent: tuple[float, float, float, float],
+    path: Path,
+    *,
+    title: str,
+    thresholds: tuple[float, float] = (0.65, 0.25),
+    marks: list[tuple[str, tuple[float, float]]] | None = None,
+) -> Path:
+    """Occupancy maps side by side, the true footprints outlined in orange on each."""
+    figure, axes_row = plt.subplots(
+        1, len(panels), figsize=(6.5 * len(panels), 6), layout='constrained', squeeze=False
+    )
+    for axes, (label, probability) in zip(axes_row[0], panels, strict=True):
+        axes.imshow(
+            _map_image(probability, *thresholds),
+            origin='lower',
+            extent=extent,
+            cmap='gray',
+            vmin=0.0,
+            vmax=1.0,
+            interpolation='nearest',
+        )
+        axes.contour(
+            truth.astype(float),
+            levels=[0.5],
+            origin='lower',
+            extent=extent,
+            colors='tab:orange',
+            linewidths=1.0,
+        )
+        for mark_label, (x, y) in marks or []:
+            axes.scatter([x], [y], marker='x', s=120, c='tab:red', label=mark_label)
+        if marks:
+            axes.legend(loc='upper left', fontsize=8)
+        axes.set_title(label)
+        axes.set_xlabel('x (m)')
+        axes.set_ylabel('y (m)')
+    figure.suptitle(f'{title} (black occupied, white free, grey unknown; orange: true footprints)')
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
+def bars_figure(
+    methods: list[str], metrics: dict[str, list[float]], path: Path, *, title: str
+) -> Path:
+    """One bar chart per metric, methods along x; `metrics` maps 'label (unit)' to values."""
+    figure, axes_row = plt.subplots(
+        1, len(metrics), figsize=(4.5 * len(metrics), 4.5), layout='constrained', squeeze=False
+    )
+    colors = [
+        FUSED_COLOR if m == 'obstacle' else LIDAR_COLOR if m == 'lidar' else '0.55' for m in methods
+    ]
+    for axes, (label, values) in zip(axes_row[0], metrics.items(), strict=True):
+        shown = [0.0 if np.isnan(v) else v for v in values]
+        axes.bar(range(len(methods)), shown, color=colors)
+        for index, value in enumerate(values):
+            text = 'n/a' if np.isnan(value) else f'{value:.3g}'
+            axes.text(index, shown[index], text, ha='center', va='bottom', fontsize=8)
+        axes.set_xticks(range(len(methods)), methods, rotation=40, ha='right', fontsize=8)
+        axes.set_ylabel(label)
+        axes.grid(visible=True, axis='y', alpha=0.3)
+    figure.suptitle(title)
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
