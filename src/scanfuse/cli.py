@@ -101,8 +101,9 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
     ] = None,
     no_noise: Annotated[bool, typer.Option('--no-noise', help='perfect sensors')] = False,
     depth_backend: Annotated[
-        str, typer.Option(help='multiray (no GL) | renderer (MUJOCO_GL=egl or osmesa)')
-    ] = 'multiray',
+        str,
+        typer.Option(help='auto (renderer where headless GL works) | multiray (no GL) | renderer'),
+    ] = 'auto',
     snapshot: Annotated[
         Path | None, typer.Option(help='PNG of the world from above with the first scans')
     ] = None,
@@ -111,6 +112,10 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
     camera_pitch: Annotated[float, typer.Option(help='camera pitch, degrees down')] = 20.0,
 ) -> None:
     """Simulate a robot in an indoor world and record its sensors and ground truth as a bag."""
+    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+
+    if depth_backend != 'multiray':
+        choose_headless_gl()
     from scanfuse.sim.cli import run_simulate  # noqa: PLC0415
 
     run_simulate(
@@ -129,6 +134,23 @@ def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
         mounting=(lidar_height, camera_height, camera_pitch),
         console=Console(),
     )
+
+
+@app.command()
+def evaluate(
+    out: Annotated[Path, typer.Option('--out', help='folder for report.md, results.json, figures')],
+    quick: Annotated[
+        bool, typer.Option('--quick', help='small run: 2 clutter worlds, low resolution')
+    ] = False,
+    worlds: Annotated[
+        str | None, typer.Option(help='comma-separated: bookshelf,barricade,clutter,room')
+    ] = None,
+    trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
+) -> None:
+    """Measure every method: scan metrics, maps, closed-loop collisions; write a report."""
+    from scanfuse.evaluate.cli import run_evaluate  # noqa: PLC0415
+
+    run_evaluate(out, quick=quick, worlds=worlds, trials=trials, console=Console())
 
 
 @app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})

@@ -153,6 +153,7 @@ class DepthNoise:
 class DepthBackend(str, Enum):
     """How depth images are made."""
 
+    AUTO = 'auto'  # the renderer where MUJOCO_GL names a working headless GL, else rays
     MULTIRAY = 'multiray'  # one mj_multiRay ray per pixel (no OpenGL needed)
     RENDERER = 'renderer'  # mujoco.Renderer depth buffer (needs MUJOCO_GL=egl or osmesa)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
@@ -11,6 +12,7 @@ import mujoco
 import numpy as np
 
 from scanfuse.config import FusionConfig
+from scanfuse.headless_gl import HEADLESS_BACKENDS
 from scanfuse.scan import Scan
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.robot import ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
@@ -73,7 +75,7 @@ class SimConfig:
     lidar_noise: LidarNoise = field(default_factory=LidarNoise)
     depth_noise: DepthNoise = field(default_factory=DepthNoise)
     robot: RobotSpec = field(default_factory=RobotSpec)
-    depth_backend: DepthBackend = DepthBackend.MULTIRAY
+    depth_backend: DepthBackend = DepthBackend.AUTO
     timestep: float = 0.002
     state_rate: float = 50.0  # odometry, true pose and contact checks, Hz
     min_obstacle_height: float = _DEFAULTS.min_obstacle_height
@@ -300,11 +302,7 @@ class Simulation:
         self._depth_fan = RayFan(
             rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
         )
-        self._renderer = (
-            RendererDepth(self.model, self.camera)
-            if config.depth_backend is DepthBackend.RENDERER
-            else None
-        )
+        self._renderer = self._make_renderer(config.depth_backend)
         self.truth = TruthScanner(
             self.world.obstacles,
             self.lidar_profile.grid,
@@ -317,6 +315,16 @@ class Simulation:
         self._depth_rng = np.random.default_rng(depth_seed)
         self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
         self._settle()
+
+    def _make_renderer(self, backend: DepthBackend) -> RendererDepth | None:
+        if backend is DepthBackend.RENDERER:
+            return RendererDepth(self.model, self.camera)
+        if backend is DepthBackend.AUTO and os.environ.get('MUJOCO_GL') in HEADLESS_BACKENDS:
+            try:
+                return RendererDepth(self.model, self.camera)
+            except SimError:
+                return None  # the same depth by ray casting, only slower
+        return None
 
     # ------------------------------------------------------------ state
 
