@@ -10,6 +10,7 @@ import matplotlib as mpl
 mpl.use('Agg')  # files only: robots and CI have no screen
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Circle
 
 from scanfuse.camera import depth_in_metres
 
@@ -17,6 +18,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     import numpy.typing as npt
+    from matplotlib.axes import Axes
 
     from scanfuse.scan import Scan
 
@@ -43,7 +45,7 @@ def scan_points(layer: ScanLayer) -> npt.NDArray[np.float64]:
     return np.column_stack([x, y])
 
 
-def draw_scans(axes: plt.Axes, layers: list[ScanLayer], *, title: str) -> None:
+def draw_scans(axes: Axes, layers: list[ScanLayer], *, title: str) -> None:
     """Top-down view, REP-103: x forward (up the page), y left (to the left)."""
     for layer in layers:
         points = scan_points(layer)
@@ -104,11 +106,11 @@ class WorldView:
     robot_radius: float
 
 
-def _draw_footprints(axes: plt.Axes, view: WorldView) -> None:
+def _draw_footprints(axes: Axes, view: WorldView) -> None:
     for kind, polygon in view.footprints:
         color = '0.75' if kind == 'wall' else '0.45'
         axes.fill(polygon[:, 0], polygon[:, 1], color=color, alpha=0.6, linewidth=0)
-    robot = plt.Circle(view.robot_xy, view.robot_radius, fill=False, color='black', linewidth=1.5)
+    robot = Circle(view.robot_xy, view.robot_radius, fill=False, color='black', linewidth=1.5)
     axes.add_patch(robot)
     tip = (
         view.robot_xy[0] + view.robot_radius * np.cos(view.robot_yaw),

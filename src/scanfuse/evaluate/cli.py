@@ -1,0 +1,95 @@
+"""The `scanfuse evaluate` command's work: settings from options, rich progress, the table."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
+
+from scanfuse.errors import ConfigError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from rich.console import Console
+
+    from scanfuse.evaluate.results import EvaluationResult
+
+KNOWN_WORLDS = ('bookshelf', 'barricade', 'clutter', 'room')
+
+
+class RichProgress:
+    """A rich progress bar over the closed-loop trials."""
+
+    def __init__(self, console: Console) -> None:
+        self._bar = Progress(
+            TextColumn('{task.description}'),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+        )
+        self._task = TaskID(0)
+
+    def start(self, description: str, total: int) -> None:
+        self._bar.start()
+        self._task = self._bar.add_task(description, total=total)
+
+    def advance(self) -> None:
+        self._bar.advance(self._task)
+
+    def finish(self) -> None:
+        self._bar.stop()
+
+
+def parse_worlds(worlds: str | None) -> tuple[str, ...] | None:
+    if worlds is None:
+        return None
+    names = tuple(name.strip() for name in worlds.split(',') if name.strip())
+    unknown = [name for name in names if name not in KNOWN_WORLDS]
+    if unknown or not names:
+        given = ', '.join(unknown) or '(none given)'
+        msg = f'unknown world(s) {given}; choose from {", ".join(KNOWN_WORLDS)}'
+        raise ConfigError(msg)
+    return names
+
+
+def run_evaluate(
+    out: Path,
+    *,
+    quick: bool,
+    worlds: str | None,
+    trials: int | None,
+    console: Console,
+) -> EvaluationResult:
+    """Run the evaluation into `out` and print the headline table and where things are."""
+    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+
+    # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
+    choose_headless_gl()
+    from scanfuse.evaluate.report import table  # noqa: PLC0415
+    from scanfuse.evaluate.runner import EvaluationSettings, run_evaluation  # noqa: PLC0415
+
+    changes: dict[str, object] = {}
+    names = parse_worlds(worlds)
+    if names is not None:
+        changes['worlds'] = names
+    if trials is not None:
+        if trials < 0:
+            msg = f'--trials must be zero or more, got {trials}'
+            raise ConfigError(msg)
+        changes['trials'] = trials
+    make = EvaluationSettings.quick if quick else EvaluationSettings
+    settings = make(**changes)  # type: ignore[arg-type]
+    result = run_evaluation(out, settings, RichProgress(console))
+    console.print(table(result))
+    console.print(f'report: {out / "report.md"}')
+    console.print(f'results: {out / "results.json"}')
+    return result

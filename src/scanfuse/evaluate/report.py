@@ -1,0 +1,329 @@
+"""The evaluation's report: figures, report.md, and the rich table of headline numbers."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from rich.table import Table
+
+from scanfuse.evaluate import figures
+from scanfuse.evaluate.mapping import FREE_THRESH, OCCUPIED_THRESH, GridSpec, OccupancyGrid
+from scanfuse.evaluate.metrics import TOLERANCE_ABSOLUTE, TOLERANCE_RELATIVE
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from scanfuse.evaluate.results import EvaluationResult
+    from scanfuse.evaluate.runner import Evaluation, MapSet
+    from scanfuse.sim.worlds import World
+
+HEADLINE_TARGETS = {'recall': 0.95, 'false_obstacle_rate': 0.005}
+
+
+def _fmt(value: float, digits: int = 3) -> str:
+    return 'n/a' if math.isnan(value) else f'{value:.{digits}f}'
+
+
+def _percent(value: float) -> str:
+    return 'n/a' if math.isnan(value) else f'{100 * value:.2f} %'
+
+
+def headline_rows(result: EvaluationResult) -> list[list[str]]:
+    """Method, recall, false obstacles, median error, collisions, goals reached."""
+    rows = []
+    for name, method in result.methods.items():
+        loop = method.closed_loop
+        rows.append(
+            [
+                name,
+                _fmt(method.scan.recall),
+                _percent(method.scan.false_obstacle_rate),
+                _fmt(method.scan.median_error),
+                f'{loop.collisions}/{loop.trials}' if loop else '-',
+                f'{loop.reached}/{loop.trials}' if loop else '-',
+            ]
+        )
+    return rows
+
+
+HEADERS = [
+    'method',
+    'recall (low, in view <= 3 m)',
+    'false obstacles (% of slots)',
+    'median error (m)',
+    'collisions',
+    'goals reached',
+]
+
+
+def table(result: EvaluationResult) -> Table:
+    """The headline numbers as a rich table for the terminal."""
+    view = Table(title='scanfuse evaluation: headline numbers')
+    for header in HEADERS:
+        view.add_column(header, justify='left' if header == 'method' else 'right')
+    for row in headline_rows(result):
+        style = 'bold' if row[0] == 'obstacle' else None
+        view.add_row(*row, style=style)
+    return view
+
+
+def _markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    lines = ['| ' + ' | '.join(headers) + ' |', '|' + '---|' * len(headers)]
+    lines += ['| ' + ' | '.join(row) + ' |' for row in rows]
+    return '\n'.join(lines)
+
+
+def markdown(result: EvaluationResult) -> str:
+    """report.md: what was run, the headline table, per-kind recall, maps, trials, figures."""
+    settings = result.settings
+    parts = [
+        '# scanfuse evaluation',
+        '',
+        (
+            f'Worlds: {", ".join(settings["worlds"])}; {settings["trials"]} seeded clutter worlds; '
+            f'depth {settings["resolution"][0]}x{settings["resolution"][1]} at 10 Hz; '
+            f'noise {"on" if settings["noise"] else "off"}. Tolerance {TOLERANCE_ABSOLUTE} m + '
+            f'{100 * TOLERANCE_RELATIVE:.0f} % of the range. Scan metrics are measured on the '
+            'frames of the `obstacle` closed-loop runs, every method on the same frames.'
+        ),
+        '',
+        '## Headline',
+        '',
+        _markdown_table(HEADERS, headline_rows(result)),
+        '',
+        (
+            f'Targets for `obstacle`: recall >= {HEADLINE_TARGETS["recall"]}, false obstacles '
+            f'<= {100 * HEADLINE_TARGETS["false_obstacle_rate"]} % of slots, no collisions.'
+        ),
+        '',
+        '## Scan metrics per method',
+        '',
+    ]
+    kinds = sorted({k for m in result.methods.values() for k in m.scan.recall_by_kind})
+    rows = []
+    for name, method in result.methods.items():
+        scan = method.scan
+        rows.append(
+            [
+                name,
+                str(scan.low_slots),
+                _fmt(scan.recall),
+                _fmt(scan.recall_all),
+                _percent(scan.false_obstacle_rate),
+                _fmt(scan.median_error),
+                _fmt(scan.p95_error),
+                *(_fmt(scan.recall_by_kind.get(k, float('nan')), 2) for k in kinds),
+            ]
+        )
+    headers = [
+        'method',
+        'low slots in view',
+        'recall in view',
+        'recall all',
+        'false obstacles',
+        'median error (m)',
+        'p95 error (m)',
+        *(f'recall {k}' for k in kinds),
+    ]
+    parts += [_markdown_table(headers, rows), '']
+    parts += ['## Scan metrics per world', '']
+    worlds = sorted({w for m in result.methods.values() for w in m.scan_by_world})
+    rows = [
+        [
+            name,
+            world,
+            _fmt(m.scan_by_world[world].recall),
+            _percent(m.scan_by_world[world].false_obstacle_rate),
+        ]
+        for name, m in result.methods.items()
+        for world in worlds
+        if world in m.scan_by_world
+    ]
+    parts += [_markdown_table(['method', 'world', 'recall', 'false obstacles'], rows), '']
+    parts += [
+        '## Maps (true poses) against the true footprints',
+        '',
+        'Occupied cells within one cell of the truth; IoU exact, inside the observed region.',
+        '',
+    ]
+    rows = [
+        [name, label, _fmt(a.precision), _fmt(a.recall), _fmt(a.iou)]
+        for name, m in result.methods.items()
+        for label, a in m.maps.items()
+    ]
+    parts += [_markdown_table(['method', 'trial', 'precision', 'recall', 'IoU'], rows), '']
+    parts += ['## Closed-loop trials', '']
+    rows = [
+        [
+            o.trial,
+            o.method,
+            'yes' if o.collided else 'no',
+            o.first_contact_kind or '-',
+            'yes' if o.reached else 'no',
+            _fmt(o.path_length, 2),
+            _fmt(o.duration, 1),
+        ]
+        for o in result.trials
+    ]
+    parts += [
+        _markdown_table(
+            ['trial', 'method', 'collided', 'hit', 'reached', 'driven (m)', 'time (s)'], rows
+        ),
+        '',
+    ]
+    parts += ['## Files', '']
+    parts += [f'- `{name}`' for name in result.files]
+    parts += ['']
+    return '\n'.join(parts)
+
+
+# ---------------------------------------------------------------- figures
+
+
+def write_figures(evaluation: Evaluation, out: Path) -> list[str]:
+    files = []
+    for label, snapshot in evaluation.snapshots.items():
+        files.append(_scan_figure(evaluation, label, out).name)
+        del snapshot
+    for label, map_set in evaluation.maps.items():
+        files.append(_maps_figure(label, map_set, out).name)
+    files.append(_bars_figure(evaluation, out).name)
+    for label, entry in evaluation.collision_logs.items():
+        if entry[2].collided:
+            files.append(_collision_figure(label, entry, out).name)
+            break
+    return files
+
+
+def _view(
+    world: World, title: str, *, x: float, y: float, yaw: float, radius: float
+) -> figures.WorldView:
+    return figures.WorldView(
+        title=title,
+        footprints=[(o.kind, o.footprint) for o in world.obstacles],
+        bounds=world.bounds,
+        robot_xy=(x, y),
+        robot_yaw=yaw,
+        robot_radius=radius,
+    )
+
+
+def _scan_figure(evaluation: Evaluation, label: str, out: Path) -> Path:
+    from scanfuse.evaluate.closed_loop import evaluation_world  # noqa: PLC0415
+
+    snapshot = evaluation.snapshots[label]
+    frame = snapshot.frame
+    world_name, seed = label.rsplit('-', 1)
+    world = evaluation_world(world_name, int(seed))
+    origin = frame.origin[:2]
+    view = _view(
+        world,
+        f'{world_name}: LiDAR scan (red) and fused obstacle scan (blue), robot {FIGURE_GAP}',
+        x=frame.pose.x,
+        y=frame.pose.y,
+        yaw=frame.pose.yaw,
+        radius=0.18,
+    )
+    layers = [
+        figures.ScanLayer(
+            'fused (obstacle)',
+            snapshot.scans['obstacle'],
+            figures.FUSED_COLOR,
+            origin,
+            frame.pose.yaw,
+            14.0,
+        )
+        if 'obstacle' in snapshot.scans
+        else None,
+        figures.ScanLayer(
+            'LiDAR /scan', frame.scan, figures.LIDAR_COLOR, origin, frame.pose.yaw, 4.0
+        ),
+    ]
+    path = out / f'scans_{world_name}.png'
+    return figures.world_scans_figure(view, [layer for layer in layers if layer], path)
+
+
+FIGURE_GAP = '1 m before the obstacle'
+
+
+def _extent(spec: GridSpec) -> tuple[float, float, float, float]:
+    x0, y0 = spec.origin
+    return (x0, x0 + spec.width * spec.resolution, y0, y0 + spec.height * spec.resolution)
+
+
+def _maps_figure(label: str, map_set: MapSet, out: Path) -> Path:
+    panels = [
+        (f'{name}: {label}', map_set.grids[name].probability())
+        for name in ('lidar', 'obstacle')
+        if name in map_set.grids
+    ]
+    return figures.maps_figure(
+        panels,
+        map_set.truth,
+        _extent(map_set.spec),
+        out / f'maps_{label}.png',
+        title=f'{label}: LiDAR-only map and fused map, true poses',
+        thresholds=(OCCUPIED_THRESH, FREE_THRESH),
+    )
+
+
+def _bars_figure(evaluation: Evaluation, out: Path) -> Path:
+    result = evaluation.result([])
+    names = list(result.methods)
+    metrics = {
+        'recall of low obstacles in view': [result.methods[n].scan.recall for n in names],
+        'false obstacles (% of slots)': [
+            100 * result.methods[n].scan.false_obstacle_rate for n in names
+        ],
+        'collisions (share of trials)': [
+            (loop.collisions / loop.trials)
+            if (loop := result.methods[n].closed_loop)
+            else float('nan')
+            for n in names
+        ],
+    }
+    return figures.bars_figure(
+        names, metrics, out / 'metrics.png', title='scanfuse: methods compared'
+    )
+
+
+def _collision_figure(label: str, entry: tuple[World, object, object, float], out: Path) -> Path:
+    from scanfuse.evaluate.closed_loop import DriveLog, TrialOutcome  # noqa: PLC0415
+    from scanfuse.evaluate.runner import odometry_world_poses  # noqa: PLC0415
+
+    world, log, outcome, _ = entry
+    assert isinstance(log, DriveLog)
+    assert isinstance(outcome, TrialOutcome)
+    spec = GridSpec.covering(world.bounds, 0.05, margin=0.3)
+    true_map, odom_map = OccupancyGrid(spec), OccupancyGrid(spec)
+    believed = odometry_world_poses(world, log)
+    for record, (x, y, yaw) in zip(log.frames, believed, strict=True):
+        frame = record.lidar
+        true_map.integrate(frame.scan, frame.origin[0], frame.origin[1], frame.pose.yaw)
+        odom_map.integrate(frame.scan, x, y, yaw)
+    from scanfuse.evaluate.mapping import rasterize_footprints  # noqa: PLC0415
+
+    truth = rasterize_footprints(
+        spec, [o.footprint for o in world.obstacles if o.overlaps_slab(0.03, 0.5)]
+    )
+    contact = log.contacts[0].position[:2] if log.contacts else None
+    end_true = log.frames[-1].lidar.pose
+    end_odom = believed[-1]
+    drift = math.hypot(end_true.x - end_odom[0], end_true.y - end_odom[1])
+    marks = [('first contact', (float(contact[0]), float(contact[1])))] if contact else []
+    return figures.maps_figure(
+        [
+            ('LiDAR only, true poses', true_map.probability()),
+            (
+                f'LiDAR only, wheel odometry (drift {drift:.2f} m at the end)',
+                odom_map.probability(),
+            ),
+        ],
+        truth,
+        _extent(spec),
+        out / f'map_after_collision_{label}.png',
+        title=f'{label}: map after the LiDAR-only robot hits the {outcome.first_contact_kind}',
+        thresholds=(OCCUPIED_THRESH, FREE_THRESH),
+        marks=marks,
+    )

@@ -1,0 +1,165 @@
+"""Typed evaluation results that are saved as JSON, loaded back and compared between runs."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from scanfuse.errors import ScanfuseError
+from scanfuse.evaluate.closed_loop import TrialOutcome
+from scanfuse.evaluate.mapping import MapAgreement
+from scanfuse.evaluate.metrics import ScanMetrics
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+RESULTS_VERSION = 1
+
+
+class ResultsError(ScanfuseError):
+    """A results file cannot be read."""
+
+
+@dataclass(frozen=True)
+class ClosedLoopSummary:
+    """Closed-loop trials of one method."""
+
+    trials: int
+    collisions: int
+    reached: int
+    mean_path_length: float  # metres, trials that reached the goal
+    mean_time: float  # simulated seconds, trials that reached the goal
+
+    @classmethod
+    def of(cls, outcomes: list[TrialOutcome]) -> ClosedLoopSummary:
+        arrived = [o for o in outcomes if o.reached and not o.collided]
+        return cls(
+            trials=len(outcomes),
+            collisions=sum(o.collided for o in outcomes),
+            reached=sum(o.reached for o in outcomes),
+            mean_path_length=_mean([o.path_length for o in arrived]),
+            mean_time=_mean([o.duration for o in arrived]),
+        )
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values) if values else float('nan')
+
+
+@dataclass(frozen=True)
+class MethodResult:
+    """Everything measured for one method."""
+
+    method: str
+    description: str
+    scan: ScanMetrics
+    scan_by_world: dict[str, ScanMetrics]
+    maps: dict[str, MapAgreement]
+    closed_loop: ClosedLoopSummary | None
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """One evaluation run: settings, per-method results, every trial, and the files written."""
+
+    settings: dict[str, Any]
+    methods: dict[str, MethodResult]
+    trials: list[TrialOutcome]
+    files: list[str] = field(default_factory=list)
+    version: int = RESULTS_VERSION
+
+    def headline(self) -> dict[str, dict[str, float]]:
+        """The numbers the report leads with, per method."""
+        table: dict[str, dict[str, float]] = {}
+        for name, result in self.methods.items():
+            row = {
+                'recall': result.scan.recall,
+                'false_obstacle_rate': result.scan.false_obstacle_rate,
+                'median_error': result.scan.median_error,
+            }
+            if result.closed_loop is not None:
+                row['trials'] = result.closed_loop.trials
+                row['collisions'] = result.closed_loop.collisions
+                row['reached'] = result.closed_loop.reached
+            table[name] = row
+        return table
+
+    def compare(self, other: EvaluationResult) -> dict[str, dict[str, float]]:
+        """Headline differences `self - other`, per method both runs have."""
+        mine, theirs = self.headline(), other.headline()
+        return {
+            method: {
+                key: value - theirs[method][key]
+                for key, value in row.items()
+                if key in theirs[method]
+            }
+            for method, row in mine.items()
+            if method in theirs
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(_nan_to_none(asdict(self)), indent=2, sort_keys=False)
+
+    def save(self, path: Path) -> Path:
+        path.write_text(self.to_json(), encoding='utf-8')
+        return path
+
+    @classmethod
+    def from_json(cls, text: str) -> EvaluationResult:
+        try:
+            data = json.loads(text)
+            version = data['version']
+            if version != RESULTS_VERSION:
+                msg = f'results file version {version}, this scanfuse reads {RESULTS_VERSION}'
+                raise ResultsError(msg)
+            return cls(
+                settings=data['settings'],
+                methods={name: _method_from_dict(value) for name, value in data['methods'].items()},
+                trials=[TrialOutcome(**_none_to_nan(trial)) for trial in data['trials']],
+                files=list(data['files']),
+                version=version,
+            )
+        except (KeyError, TypeError, json.JSONDecodeError) as err:
+            msg = f'not a scanfuse results.json ({err}); write one with `scanfuse evaluate`'
+            raise ResultsError(msg) from err
+
+    @classmethod
+    def load(cls, path: Path) -> EvaluationResult:
+        return cls.from_json(path.read_text(encoding='utf-8'))
+
+
+def _scan_from_dict(data: dict[str, Any]) -> ScanMetrics:
+    return ScanMetrics(**_none_to_nan(data))
+
+
+def _method_from_dict(data: dict[str, Any]) -> MethodResult:
+    loop = data['closed_loop']
+    return MethodResult(
+        method=data['method'],
+        description=data['description'],
+        scan=_scan_from_dict(data['scan']),
+        scan_by_world={k: _scan_from_dict(v) for k, v in data['scan_by_world'].items()},
+        maps={k: MapAgreement(**_none_to_nan(v)) for k, v in data['maps'].items()},
+        closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
+    )
+
+
+def _nan_to_none(value: Any) -> Any:
+    """JSON has no NaN: store it as null."""
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, dict):
+        return {key: _nan_to_none(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_nan_to_none(item) for item in value]
+    return value
+
+
+def _none_to_nan(value: Any) -> Any:
+    if value is None:
+        return float('nan')
+    if isinstance(value, dict):
+        return {key: _none_to_nan(item) for key, item in value.items()}
+    return value

@@ -1,0 +1,175 @@
+"""The method registry, ground truth per slot, results files, and `scanfuse evaluate --quick`."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.cli import main
+from scanfuse.config import FusionConfig, Method, Resampler
+from scanfuse.errors import ConfigError
+from scanfuse.evaluate.closed_loop import clutter_goal, odom_to_world, world_to_odom
+from scanfuse.evaluate.groundtruth import SlotTruthBuilder
+from scanfuse.evaluate.methods import METHODS, MethodRunner, method_spec
+from scanfuse.evaluate.results import EvaluationResult, ResultsError
+from scanfuse.scan import Scan
+from scanfuse.sim.sensors import camera_profile, lidar_profile
+from scanfuse.sim.simulation import LidarFrame
+from scanfuse.sim.worlds import Pose2D, barricade_world, make_world
+from scanfuse.transforms import Extrinsics
+
+CAMERA = camera_profile('d435').model(640, 480)
+BASE = FusionConfig(camera_x=0.12, camera_height=0.45, lidar_height=0.30)
+
+
+def test_methods_are_config_variants_of_the_one_pipeline():
+    assert METHODS['lidar'].fuses is False
+    centre = METHODS['row-centre'].config(BASE, CAMERA)
+    assert (centre.method, centre.resample, centre.scan_row) == (
+        Method.ROW,
+        Resampler.CONSERVATIVE,
+        None,
+    )
+    assert METHODS['row-centre-linear'].config(BASE, CAMERA).resample is Resampler.LINEAR
+    low = METHODS['row-low'].config(BASE, CAMERA)
+    # Half way from the centre row (cy = 239.5 -> 240) to the last row (479): row 360.
+    assert low.scan_row == 360
+    assert low.floor_guard is True
+    d2l = METHODS['d2l'].config(BASE, CAMERA)
+    assert d2l.d2l_compat is True
+    assert d2l.scan_height == 10
+    assert METHODS['obstacle'].config(BASE, CAMERA).method is Method.OBSTACLE
+    # The robot's mounting is kept by every variant.
+    assert all(METHODS[n].config(BASE, CAMERA).camera_x == 0.12 for n in METHODS)
+
+
+def test_unknown_method():
+    with pytest.raises(ConfigError, match="unknown method 'nope'"):
+        method_spec('nope')
+
+
+def wall_scan(distance: float) -> Scan:
+    grid = lidar_profile('rplidar-a2').grid
+    return Scan(
+        grid.angle_min,
+        grid.angle_max,
+        grid.angle_increment,
+        0.15,
+        12.0,
+        np.full(grid.count, distance, dtype=np.float32),
+    )
+
+
+def test_lidar_method_passes_the_scan_through_and_fusion_only_adds():
+    scan = wall_scan(5.0)
+    # A wall at Z = 1 m filling the image reaches into the collision slab:
+    # fusion shortens slots in view, and never lengthens any.
+    depth = np.full((CAMERA.height, CAMERA.width), 1000, dtype=np.uint16)
+    lidar = MethodRunner(METHODS['lidar'], BASE, CAMERA).scan(scan, depth, CAMERA)
+    assert lidar is scan
+    fused = MethodRunner(METHODS['obstacle'], BASE, CAMERA).scan(scan, depth, CAMERA)
+    assert np.all(fused.ranges <= scan.ranges)
+    assert np.any(fused.ranges < 2.0)
+    # No image yet: the LiDAR scan as it is.
+    assert MethodRunner(METHODS['obstacle'], BASE, CAMERA).scan(scan, None, CAMERA) is scan
+
+
+def test_slot_truth_in_the_barricade_world():
+    world = barricade_world()
+    grid = lidar_profile('rplidar-a2').grid
+    builder = SlotTruthBuilder(
+        world.obstacles,
+        grid,
+        min_obstacle_height=0.03,
+        max_obstacle_height=0.5,
+        range_max=12.0,
+        camera=CAMERA,
+        extrinsics=Extrinsics.from_config(BASE),
+    )
+    scan = wall_scan(5.0)
+    frame = LidarFrame(0, scan, scan, Pose2D(0.0, 0.0, 0.0), (0.0, 0.0, 0.30))
+    truth = builder.build(frame)
+    ahead = int(np.argmin(np.abs(grid.angles())))
+    behind = int(np.argmin(np.abs(np.abs(grid.angles()) - math.pi)))
+    # The base's vertex points at the robot: 2.0 - 0.35 m; the LiDAR plane cuts the
+    # cylinder of radius 0.12: 1.88 m.
+    assert truth.truth[ahead] == pytest.approx(1.65, abs=1e-3)
+    assert truth.plane[ahead] == pytest.approx(1.88, abs=1e-3)
+    assert truth.kinds[ahead] == 'barricade_base'
+    assert truth.in_view[ahead]
+    # Behind: the wall at x = -1.5, seen by both, not in the camera's view.
+    assert truth.truth[behind] == pytest.approx(1.5, abs=1e-3)
+    assert truth.plane[behind] == pytest.approx(1.5, abs=1e-3)
+    assert truth.kinds[behind] == 'wall'
+    assert not truth.in_view[behind]
+
+
+def test_odometry_frame_round_trip():
+    start = Pose2D(-2.2, 0.5, math.pi / 2)
+    x, y = world_to_odom(start, -2.2, 1.5)
+    # One metre along the start heading (+y in the world) is x = 1 in odometry.
+    assert (x, y) == pytest.approx((1.0, 0.0))
+    back = odom_to_world(start, Pose2D(x, y, 0.0))
+    assert (back.x, back.y) == pytest.approx((-2.2, 1.5))
+
+
+def test_clutter_goal_lies_behind_a_low_obstacle():
+    world = make_world('clutter', 3)
+    goal = np.array(clutter_goal(world))
+    start = np.array([world.start.x, world.start.y])
+    low = [o for o in world.obstacles if o.kind in {'low_box', 'lamp_base', 'cable_tray'}]
+
+    # Some low obstacle's centre lies on the segment from the start to the goal.
+    def on_segment(point):
+        t = np.dot(point - start, goal - start) / np.dot(goal - start, goal - start)
+        return 0.0 < t < 1.0 and np.linalg.norm(start + t * (goal - start) - point) < 1e-6
+
+    assert any(on_segment(o.footprint.mean(axis=0)) for o in low)
+
+
+def test_results_file_must_be_ours(tmp_path):
+    with pytest.raises(ResultsError, match=r'not a scanfuse results\.json'):
+        EvaluationResult.from_json('{"a": 1}')
+    with pytest.raises(ResultsError, match='version 99'):
+        EvaluationResult.from_json('{"version": 99}')
+
+
+def test_evaluate_rejects_unknown_worlds(tmp_path):
+    assert main(['evaluate', '--out', str(tmp_path), '--worlds', 'moon']) == 1
+
+
+def test_evaluate_quick_runs_and_round_trips(tmp_path):
+    out = tmp_path / 'eval'
+    code = main(
+        ['evaluate', '--out', str(out), '--quick', '--worlds', 'barricade', '--trials', '0']
+    )
+    assert code == 0
+    for name in (
+        'report.md',
+        'results.json',
+        'scanfuse.yaml',
+        'metrics.png',
+        'scans_barricade.png',
+    ):
+        assert (out / name).is_file(), name
+    assert (out / 'maps' / 'barricade-0_obstacle.yaml').is_file()
+    result = EvaluationResult.load(out / 'results.json')
+    # NaN is stored as null and read back as NaN: a second round trip is the same text.
+    assert EvaluationResult.from_json(result.to_json()).to_json() == result.to_json()
+    assert set(result.methods) == set(METHODS)
+    # The resolved configuration is a parameter file scanfuse loads again.
+    assert FusionConfig.from_ros_params(out / 'scanfuse.yaml').camera_x == pytest.approx(0.12)
+    # The barricade's base is a low obstacle the LiDAR misses and the obstacle scan sees.
+    assert result.methods['lidar'].scan.recall < 0.2
+    assert result.methods['obstacle'].scan.recall > 0.8
+    # Closed loop: one trial each for lidar and obstacle; the base stops only the LiDAR robot.
+    lidar_loop = result.methods['lidar'].closed_loop
+    obstacle_loop = result.methods['obstacle'].closed_loop
+    assert lidar_loop is not None
+    assert obstacle_loop is not None
+    assert (lidar_loop.trials, lidar_loop.collisions) == (1, 1)
+    assert (obstacle_loop.trials, obstacle_loop.collisions) == (1, 0)
+    assert result.compare(result)['obstacle']['collisions'] == 0
+    assert 'obstacle' in (out / 'report.md').read_text()
