@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from common import Row, median_seconds
 
+from common import Row, median_seconds
 from scanfuse import CameraModel, FusionConfig, FusionPipeline, Method, Resampler, Scan
 from scanfuse.fuse.merge import merge_scans
-from scanfuse.fuse.resample import apply_plan, build_plan
+from scanfuse.fuse.resample import Plan, apply_plan, build_plan
 
 SIZES = ((640, 480), (848, 480), (1280, 720), (1920, 1080))
 
@@ -55,12 +55,16 @@ def run() -> list[Row]:
     for kind in Resampler:
         plan = build_plan(kind, source.grid, lidar.grid)
 
-        def step(plan=plan) -> Scan:  # type: ignore[no-untyped-def]
+        def step(plan: Plan = plan) -> Scan:
             return merge_scans(lidar, apply_plan(plan, source, lidar.grid))
 
         rows.append(
-            Row('fuse', f'resample {kind.value} + merge, 1080 readings', median_seconds(step),
-                'target < 100 us')
+            Row(
+                'fuse',
+                f'resample {kind.value} + merge, 1080 readings',
+                median_seconds(step),
+                'target < 100 us',
+            )
         )
     rows.append(
         Row('fuse', 'merge alone, 1080 readings', median_seconds(lambda: merge_scans(lidar, lidar)))

@@ -51,7 +51,7 @@ def test_unknown_encoding_names_the_supported_ones():
 
 
 def test_truncated_buffer_is_rejected():
-    with pytest.raises(DepthEncodingError, match='holds 6 bytes.*needs 8'):
+    with pytest.raises(DepthEncodingError, match=r'holds 6 bytes.*needs 8'):
         decode_depth(b'\0' * 6, '16UC1', 2, 2)
 
 
@@ -71,7 +71,7 @@ def test_unsupported_depth_dtype_is_rejected():
 
 
 def test_zero_focal_length_is_rejected():
-    with pytest.raises(InputError, match='focal length fx=0.0 must be positive'):
+    with pytest.raises(InputError, match=r'focal length fx=0\.0 must be positive'):
         CameraModel.from_intrinsics(640, 480, 0.0, 525.0, 320.0, 240.0)
 
 

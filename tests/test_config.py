@@ -62,7 +62,7 @@ def test_bad_method_is_named():
 def test_inverted_limits_are_rejected():
     with pytest.raises(ConfigError, match=r'range_min \(5.0\) must be smaller than range_max'):
         FusionConfig.from_dict({'range_min': 5.0, 'range_max': 1.0})
-    with pytest.raises(ConfigError, match='min_obstacle_height .* must be below'):
+    with pytest.raises(ConfigError, match=r'min_obstacle_height .* must be below'):
         FusionConfig.from_dict({'min_obstacle_height': 0.6, 'max_obstacle_height': 0.5})
 
 

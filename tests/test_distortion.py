@@ -16,7 +16,7 @@ PLUMB_BOB = (0.2, -0.45, 0.0015, -0.002, 0.25)
 RATIONAL = (0.6, -0.1, 0.001, -0.0008, 0.01, 0.9, 0.02, 0.005)
 
 
-def forward(x, y, k1, k2, p1, p2, k3, k4=0.0, k5=0.0, k6=0.0):  # noqa: PLR0917 - D order
+def forward(x, y, k1, k2, p1, p2, k3, k4=0.0, k5=0.0, k6=0.0):
     """OpenCV's distortion: x' = x (1 + k1 r2 + k2 r4 + k3 r6) / (1 + k4 r2 + k5 r4 + k6 r6)
     + 2 p1 x y + p2 (r2 + 2 x2), y' = y (...) + p1 (r2 + 2 y2) + 2 p2 x y."""
     r2 = x * x + y * y

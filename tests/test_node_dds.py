@@ -68,7 +68,7 @@ class Loopback:
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
         log = (self.tmp / f'{name}.log').open('w')
-        process = subprocess.Popen(  # noqa: S603 - our own interpreter and modules
+        process = subprocess.Popen(
             [PY, *args], env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.tmp
         )
         self.processes.append(process)

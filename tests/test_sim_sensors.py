@@ -284,7 +284,7 @@ def test_renderer_depth_agrees_with_ray_casting():
         """
     )
     environment = {**os.environ, 'MUJOCO_GL': os.environ.get('MUJOCO_GL', 'egl')}
-    result = subprocess.run(  # noqa: S603 - our own interpreter running our own script
+    result = subprocess.run(
         [sys.executable, '-c', script],
         capture_output=True,
         text=True,

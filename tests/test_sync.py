@@ -79,7 +79,7 @@ def test_matches_brute_force_in_any_order(scans, depths, max_offset):
     )
 
 
-def _stream(scans, depths, jitter_scans, jitter_depths, max_offset, reorder):  # noqa: PLR0917
+def _stream(scans, depths, jitter_scans, jitter_depths, max_offset, reorder):
     """Feed both streams in arrival order (stamp + jitter) and collect the pairs."""
     arrivals = [(s + j, 0, i) for i, (s, j) in enumerate(zip(scans, jitter_scans, strict=True))]
     arrivals += [(d + j, 1, i) for i, (d, j) in enumerate(zip(depths, jitter_depths, strict=True))]

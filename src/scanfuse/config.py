@@ -47,10 +47,11 @@ class FusionConfig(BaseModel):
     )
     scan_height: int = Field(1, ge=1, description='rows in the band of the row method')
     d2l_compat: bool = Field(
-        False, description='row method reproduces depthimage_to_laserscan exactly'
+        default=False, description='row method reproduces depthimage_to_laserscan exactly'
     )
     floor_guard: bool = Field(
-        True, description='row method: cut each slot where its line of sight meets the floor'
+        default=True,
+        description='row method: cut each slot where its line of sight meets the floor',
     )
     floor_margin: float = Field(
         0.05, ge=0.0, description='metres kept short of the floor intersection by floor_guard'
@@ -76,7 +77,7 @@ class FusionConfig(BaseModel):
     lidar_height: float = Field(0.30, description='LiDAR height above the floor, metres')
     lidar_yaw: float = Field(0.0, description='LiDAR yaw in the base frame, radians')
     use_tf: bool = Field(
-        True, description='take extrinsics from /tf_static and /tf when they are there'
+        default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
     base_frame: str = Field('base_link', description='robot frame whose z = 0 is the floor')
     max_time_offset: float = Field(
@@ -85,7 +86,9 @@ class FusionConfig(BaseModel):
     camera_timeout: float = Field(
         0.5, gt=0.0, description='camera silence after which the LiDAR passes through, seconds'
     )
-    publish_depth_scan: bool = Field(True, description='also publish the depth scan on /scan_depth')
+    publish_depth_scan: bool = Field(
+        default=True, description='also publish the depth scan on /scan_depth'
+    )
     scan_topic: str = Field('/scan', description='LiDAR LaserScan topic')
     depth_topic: str = Field('/camera/depth/image_raw', description='depth Image topic')
     camera_info_topic: str = Field('/camera/depth/camera_info', description='CameraInfo topic')

@@ -92,8 +92,8 @@ def run_demo(out: Path, console: Console) -> Path:
     fit = fit_floor(frame.depth, frame.camera)
     console.print(
         f'floor fit: camera {fit.camera_height:.3f} m above the floor, pitched '
-        f'{math.degrees(fit.camera_pitch):.1f} deg down, roll {math.degrees(fit.camera_roll):.1f} deg'
-        f' ({fit.inlier_share:.0%} of points on the floor)'
+        f'{math.degrees(fit.camera_pitch):.1f} deg down, roll '
+        f'{math.degrees(fit.camera_roll):.1f} deg ({fit.inlier_share:.0%} of points on the floor)'
     )
     guard = FloorGuard(fit.camera_height, fit.camera_pitch, config.floor_margin)
     limits = {'range_min': 0.5, 'range_max': 8.0}  # the Kinect's working range

@@ -135,7 +135,7 @@ class SlotLookup:
         return slot
 
 
-def _nearest_squared_loop(  # noqa: PLR0917 - numba kernels take plain arrays
+def _nearest_squared_loop(
     depth: Any,
     lo: Any,
     hi: Any,
@@ -198,7 +198,7 @@ def _load_kernel() -> Callable[..., None] | None:
 _KERNEL = _load_kernel()
 
 
-def _nearest_squared_numpy(  # noqa: PLR0917 - mirrors the kernel's arguments
+def _nearest_squared_numpy(
     depth: npt.NDArray[Any],
     lo: npt.NDArray[Any],
     hi: npt.NDArray[Any],

@@ -30,9 +30,7 @@ def merge_scans(lidar: Scan, depth_on_lidar_grid: Scan) -> Scan:
         raise InputError(msg)
     lidar_ranges = normalized_ranges(lidar)
     depth_ranges = normalized_ranges(depth_on_lidar_grid)
-    depth_wins = (depth_ranges < lidar_ranges) | (
-        np.isnan(lidar_ranges) & ~np.isnan(depth_ranges)
-    )
+    depth_wins = (depth_ranges < lidar_ranges) | (np.isnan(lidar_ranges) & ~np.isnan(depth_ranges))
     ranges = np.where(depth_wins, depth_ranges, lidar.ranges)
     intensities = None
     if lidar.intensities is not None and lidar.intensities.size:
