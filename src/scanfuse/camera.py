@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -72,18 +72,19 @@ def decode_depth(
         strides=(step, dtype.itemsize),
     )
     if typed.byteorder not in ('=', '|') and typed != dtype:
-        image = image.astype(dtype)
-    return image  # type: ignore[return-value]
+        image = image.astype(dtype)  # big-endian on this machine: one swapped copy
+    return cast('npt.NDArray[np.uint16] | npt.NDArray[np.float32]', image)
 
 
 def depth_in_metres(depth: npt.NDArray[np.generic]) -> npt.NDArray[np.float32]:
     """float32 metres from uint16 millimetres (0 -> NaN) or float32/float64 metres."""
     if depth.dtype == np.uint16:
-        metres = depth.astype(np.float32) * np.float32(MILLIMETRE)
+        metres: npt.NDArray[np.float32] = depth.astype(np.float32) * np.float32(MILLIMETRE)
         metres[depth == 0] = np.nan
         return metres
     if depth.dtype in (np.float32, np.float64):
-        return depth.astype(np.float32, copy=False)
+        as_float: npt.NDArray[np.float32] = depth.astype(np.float32, copy=False)
+        return as_float
     msg = (
         f'depth image dtype {depth.dtype} is not supported; pass uint16 millimetres '
         '(16UC1) or float32 metres (32FC1)'
@@ -189,11 +190,11 @@ class CameraModel:
             from scanfuse.distortion import undistort_normalized  # noqa: PLC0415
 
             x_n, y_n = undistort_normalized(x_n, y_n, self.distortion_model, self.distortion)
-        x_n = x_n.astype(np.float32)
-        y_n = y_n.astype(np.float32)
-        x_n.setflags(write=False)
-        y_n.setflags(write=False)
-        return x_n, y_n
+        x_table: npt.NDArray[np.float32] = x_n.astype(np.float32)
+        y_table: npt.NDArray[np.float32] = y_n.astype(np.float32)
+        x_table.setflags(write=False)
+        y_table.setflags(write=False)
+        return x_table, y_table
 
     def check_depth(self, depth: npt.NDArray[np.generic]) -> None:
         """Raise InputError unless `depth` is a (height, width) uint16 or float image."""

@@ -38,7 +38,7 @@ def demo(
 
 
 @app.command()
-def bag(  # noqa: PLR0917 - a typer command takes its options as parameters
+def bag(
     input_bag: Annotated[
         Path, typer.Argument(metavar='INPUT', help='ROS 2 bag (folder, .db3, .mcap) or ROS 1 .bag')
     ],
@@ -85,7 +85,7 @@ def bag(  # noqa: PLR0917 - a typer command takes its options as parameters
 
 
 @app.command()
-def simulate(  # noqa: PLR0917 - a typer command takes its options as parameters
+def simulate(
     out: Annotated[Path, typer.Option('--out', help='bag to write: NAME.mcap file or folder')],
     world: Annotated[str, typer.Option(help='room | bookshelf | barricade | clutter')] = (
         'bookshelf'
@@ -174,22 +174,16 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     try:
-        app(args=argv, standalone_mode=False)
+        # Standalone mode: typer prints usage errors itself and ends with SystemExit.
+        app(args=argv)
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
     except ScanfuseError as err:
         console.print(f'[bold red]error:[/] {err}')
         return 1
-    except typer.Exit as err:
-        return int(err.exit_code)
-    except (typer.Abort, KeyboardInterrupt):
+    except KeyboardInterrupt:
         console.print('[red]aborted[/]')
         return 130
-    except Exception as err:  # click usage errors carry their own exit code
-        import click  # noqa: PLC0415
-
-        if isinstance(err, click.ClickException):
-            err.show()
-            return err.exit_code
-        raise
     return 0
 
 

@@ -96,16 +96,23 @@ def run_demo(out: Path, console: Console) -> Path:
         f'{math.degrees(fit.camera_roll):.1f} deg ({fit.inlier_share:.0%} of points on the floor)'
     )
     guard = FloorGuard(fit.camera_height, fit.camera_pitch, config.floor_margin)
-    limits = {'range_min': 0.5, 'range_max': 8.0}  # the Kinect's working range
+    range_min, range_max = 0.5, 8.0  # the Kinect's working range
     centre_row = round(frame.camera.cy)
     low_row = frame.camera.height - 60
     scans = {
-        'row, centre (paper)': row_scan(frame.depth, frame.camera, **limits),
+        'row, centre (paper)': row_scan(
+            frame.depth, frame.camera, range_min=range_min, range_max=range_max
+        ),
         'row, centre + floor_guard': row_scan(
-            frame.depth, frame.camera, floor_guard=guard, **limits
+            frame.depth, frame.camera, range_min=range_min, range_max=range_max, floor_guard=guard
         ),
         'row, low + floor_guard': row_scan(
-            frame.depth, frame.camera, scan_row=low_row, floor_guard=guard, **limits
+            frame.depth,
+            frame.camera,
+            scan_row=low_row,
+            range_min=range_min,
+            range_max=range_max,
+            floor_guard=guard,
         ),
     }
     # A LiDAR under the camera, 0.3 m above the floor, as on a small robot.
@@ -122,7 +129,8 @@ def run_demo(out: Path, console: Console) -> Path:
         RPLIDAR_GRID,
         min_obstacle_height=config.min_obstacle_height,
         max_obstacle_height=config.max_obstacle_height,
-        **limits,
+        range_min=range_min,
+        range_max=range_max,
     )
     colors = ('tab:red', 'tab:orange', 'tab:purple', 'tab:blue')
     layers = [

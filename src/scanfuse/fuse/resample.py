@@ -97,7 +97,8 @@ class ConservativePlan:
     def apply(self, ranges: FloatArray) -> FloatArray:
         # Index `count` is the appended NaN, which fmin ignores.
         padded = np.append(ranges, np.float32(np.nan))
-        return np.fmin.reduce(padded[self.gather], axis=0)
+        nearest: FloatArray = np.fmin.reduce(padded[self.gather], axis=0)
+        return nearest
 
 
 Plan = LinearPlan | ConservativePlan
