@@ -15,8 +15,9 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(PIP) install -e .
 	touch $@
 
-$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
-	$(PIP) install -e '.[test,ros,dev]'
+$(VENV)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(BIN)/python
+	$(PIP) install -e '.[test,ros,rosbuild,dev]'
+	$(BIN)/python tools/build_tf2_msgs.py
 	touch $@
 
 demo: $(VENV)/.installed
