@@ -61,7 +61,9 @@ def table(result: EvaluationResult) -> Table:
     """The headline numbers as a rich table for the terminal."""
     view = Table(title='scanfuse evaluation: headline numbers')
     for header in HEADERS:
-        view.add_column(header, justify='left' if header == 'method' else 'right')
+        view.add_column(
+            header, justify='left' if header == 'method' else 'right', no_wrap=header == 'method'
+        )
     for row in headline_rows(result):
         style = 'bold' if row[0] == 'obstacle' else None
         view.add_row(*row, style=style)
