@@ -19,6 +19,7 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
+from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.ros.bag import fuse_bag
@@ -287,3 +288,24 @@ def test_example_launch_file_names_declared_parameters():
             names |= {k.value for k in node.keys if isinstance(k, ast.Constant)}
     assert names
     assert names <= declared
+
+
+def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up():
+    scene = Scene()
+    live = LiveFusion(FusionConfig(use_tf=False))
+    live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=1), 0.0)
+    first = live._camera
+    live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=2), 0.1)
+    assert live._camera is first  # same calibration, new stamp: the model is kept
+    recalibrated = CameraModel.from_intrinsics(
+        scene.width,
+        scene.height,
+        2 * scene.focal,
+        2 * scene.focal,
+        10.0,
+        20.0,
+        frame_id=scene.camera.frame_id,
+    )
+    live.on_camera_info(camera_to_cdr(recalibrated, stamp_ns=3), 0.2)
+    assert live._camera is not None
+    assert (live._camera.fx, live._camera.cx, live._camera.cy) == (2 * scene.focal, 10.0, 20.0)

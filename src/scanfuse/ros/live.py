@@ -117,6 +117,12 @@ class _Window:
     times: list[float] = field(default_factory=list)
 
 
+def _without_stamp(raw: RawMessage) -> bytes | None:
+    """A message's CDR bytes less its header stamp (bytes 4-12, after the encapsulation)."""
+    data = bytes(raw)
+    return data[:4] + data[12:] if len(data) > 12 else None
+
+
 class LiveFusion:
     """Turns incoming CDR messages (with their monotonic arrival time) into scans to publish."""
 
@@ -138,6 +144,7 @@ class LiveFusion:
         self._frames: deque[_Frame] = deque(maxlen=MAX_FRAMES)
         self._pending: deque[_Pending] = deque()
         self._camera: CameraModel | None = None
+        self._camera_key: bytes | None = None
         self._last_scan: float | None = None
         self._last_depth: float | None = None
         self._started: float | None = None  # first message or health report
@@ -208,11 +215,16 @@ class LiveFusion:
 
     def on_camera_info(self, raw: RawMessage, now: float) -> None:
         self._note_start(now)
+        # Drivers send the same CameraInfo with every frame: only its stamp changes.
+        key = _without_stamp(raw)
+        if key is not None and key == self._camera_key:
+            return
         try:
             camera = camera_from_cdr(raw, self.store)
         except MessageError as err:
             self._malformed('camera info', err)
             return
+        self._camera_key = key
         if camera != self._camera:
             self._camera = camera
             self._frames.clear()
@@ -228,6 +240,10 @@ class LiveFusion:
     def on_tick(self, now: float) -> list[Output]:
         """Scans whose wait for a newer frame is over."""
         return self._release(now)
+
+    def next_deadline(self) -> float | None:
+        """When the oldest waiting scan must be released (monotonic s), None when none waits."""
+        return self._pending[0].deadline if self._pending else None
 
     # ------------------------------------------------------------ decisions
 

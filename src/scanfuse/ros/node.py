@@ -72,7 +72,8 @@ TF_STATIC_QOS = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
-TICK_PERIOD_S = 0.005
+# Fire just after a deadline, so `now >= deadline` holds when the timer runs.
+DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
     Kind.BOOL: ParameterType.PARAMETER_BOOL,
     Kind.INTEGER: ParameterType.PARAMETER_INTEGER,
@@ -169,8 +170,9 @@ class ScanfuseNode:
         )
         self.tf_source = self._subscribe_tf()
         self.node.create_timer(1.0, self._publish_diagnostics)
-        self.tick_timer = self.node.create_timer(TICK_PERIOD_S, self._on_tick)
-        self._set_tick(settings.pair_wait)
+        # One-shot timers at the waiting scans' deadlines (no polling: it cost CPU all the time).
+        self.deadline_timer: Any = None
+        self.deadline_due: float | None = None
         self.rosout.info(
             f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
             f'(method {config.method.value}; extrinsics: {self.tf_source})'
@@ -202,15 +204,38 @@ class ScanfuseNode:
 
     def _on_scan(self, raw: bytes) -> None:
         self._publish(self._guard('scan', lambda: self.live.on_scan(raw, time.monotonic()), raw))
+        self._arm_deadline()
 
     def _on_depth(self, raw: bytes) -> None:
         self._publish(self._guard('depth image', lambda: self.live.on_depth(raw, time.monotonic())))
+        self._arm_deadline()
 
     def _on_camera_info(self, raw: bytes) -> None:
         self._guard('camera info', lambda: self.live.on_camera_info(raw, time.monotonic()))
 
     def _on_tick(self) -> None:
+        self._disarm_deadline()
         self._publish(self._guard('tick', lambda: self.live.on_tick(time.monotonic())))
+        self._arm_deadline()
+
+    def _arm_deadline(self) -> None:
+        """A timer at the oldest waiting scan's deadline (rclpy timers repeat: it is destroyed)."""
+        due = self.live.next_deadline()
+        if due is None:
+            self._disarm_deadline()
+            return
+        if self.deadline_due is not None and self.deadline_due <= due:
+            return
+        self._disarm_deadline()
+        self.deadline_due = due
+        delay = max(due - time.monotonic(), 0.0) + DEADLINE_SLACK_S
+        self.deadline_timer = self.node.create_timer(delay, self._on_tick)
+
+    def _disarm_deadline(self) -> None:
+        if self.deadline_timer is not None:
+            self.node.destroy_timer(self.deadline_timer)
+        self.deadline_timer = None
+        self.deadline_due = None
 
     def _guard(self, kind: str, action: Any, lidar_raw: bytes | None = None) -> Any:
         """Run a callback; an unexpected error is counted and logged, never kills the node."""
@@ -247,15 +272,8 @@ class ScanfuseNode:
         self.live.reconfigure(config)
         self.live.pair_wait = settings.pair_wait
         self.live.lidar_timeout = settings.lidar_timeout
-        self._set_tick(settings.pair_wait)
         self.rosout.info(f'parameters changed: {changes}')
         return SetParametersResult(successful=True, reason='')
-
-    def _set_tick(self, pair_wait: float) -> None:
-        if pair_wait > 0.0:
-            self.tick_timer.reset()
-        else:
-            self.tick_timer.cancel()
 
     # ------------------------------------------------------------ diagnostics
 
