@@ -42,6 +42,13 @@ from sensor_msgs.msg import CameraInfo, Image, LaserScan
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
 from scanfuse.errors import ConfigError, ScanfuseError
 from scanfuse.ros.live import LiveFusion
+from scanfuse.ros.live_view import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    FoxgloveView,
+    LiveView,
+    make_view,
+)
 from scanfuse.ros.params import (
     Kind,
     NodeSettings,
@@ -135,7 +142,14 @@ def _load_defaults(params_file: str | None) -> tuple[FusionConfig, NodeSettings]
 class ScanfuseNode:
     """The rclpy node: declares parameters, wires topics to a `LiveFusion`, reports health."""
 
-    def __init__(self, defaults: FusionConfig, settings: NodeSettings) -> None:
+    def __init__(
+        self,
+        defaults: FusionConfig,
+        settings: NodeSettings,
+        *,
+        foxglove_port: int | None = None,
+        foxglove_host: str = DEFAULT_HOST,
+    ) -> None:
         self.node = rclpy.create_node(NODE_NAME)
         self.rosout = self.node.get_logger()
         self.specs = {spec.name: spec for spec in all_param_specs(defaults, settings)}
@@ -148,6 +162,8 @@ class ScanfuseNode:
             config, pair_wait=settings.pair_wait, lidar_timeout=settings.lidar_timeout
         )
         self.live.warm_up()
+        self.topics = config  # topic names are fixed at start-up
+        self.view: LiveView = make_view(config, foxglove_port, foxglove_host)
         self.node.add_on_set_parameters_callback(self._on_set_parameters)
         sensor_qos = qos_profile_sensor_data
         self.node.create_subscription(
@@ -177,6 +193,8 @@ class ScanfuseNode:
             f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
             f'(method {config.method.value}; extrinsics: {self.tf_source})'
         )
+        if isinstance(self.view, FoxgloveView):
+            self.rosout.info(f'Foxglove live view on {self.view.url}')
 
     def parameter_values(self) -> dict[str, Any]:
         return {name: self.node.get_parameter(name).value for name in self.specs}
@@ -196,19 +214,23 @@ class ScanfuseNode:
 
     def _on_tf_static(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=True)
+        self.view.log('/tf_static', raw)
 
     def _on_tf(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=False)
+        self.view.log('/tf', raw)
 
     # ------------------------------------------------------------ data
 
     def _on_scan(self, raw: bytes) -> None:
         self._publish(self._guard('scan', lambda: self.live.on_scan(raw, time.monotonic()), raw))
         self._arm_deadline()
+        self.view.log(self.topics.scan_topic, raw)
 
     def _on_depth(self, raw: bytes) -> None:
         self._publish(self._guard('depth image', lambda: self.live.on_depth(raw, time.monotonic())))
         self._arm_deadline()
+        self.view.log(self.topics.depth_topic, raw)
 
     def _on_camera_info(self, raw: bytes) -> None:
         self._guard('camera info', lambda: self.live.on_camera_info(raw, time.monotonic()))
@@ -254,8 +276,10 @@ class ScanfuseNode:
     def _publish(self, outputs: list[Output] | None) -> None:
         for output in outputs or []:
             self.fused_pub.publish(output.fused)
+            self.view.log(self.topics.fused_topic, output.fused)
             if self.depth_pub is not None and output.depth_scan is not None:
                 self.depth_pub.publish(output.depth_scan)
+                self.view.log(self.topics.depth_scan_topic, output.depth_scan)
 
     # ------------------------------------------------------------ parameters
 
@@ -306,6 +330,20 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
         description='The scanfuse ROS 2 node. ROS arguments follow --ros-args.',
     )
     parser.add_argument('--params-file', help='ROS 2 parameter file (scanfuse: ros__parameters)')
+    parser.add_argument(
+        '--foxglove',
+        nargs='?',
+        type=int,
+        const=DEFAULT_PORT,
+        default=None,
+        metavar='PORT',
+        help=f'serve a Foxglove live view on PORT (default {DEFAULT_PORT}; 0: any free port)',
+    )
+    parser.add_argument(
+        '--foxglove-host',
+        default=DEFAULT_HOST,
+        help=f'address the Foxglove server listens on (default {DEFAULT_HOST}: this machine only)',
+    )
     return parser.parse_args(remove_ros_args(args=list(argv))[1:])
 
 
@@ -321,7 +359,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init(args=argv)
     try:
         try:
-            fusion = ScanfuseNode(defaults, settings)
+            fusion = ScanfuseNode(
+                defaults,
+                settings,
+                foxglove_port=options.foxglove,
+                foxglove_host=options.foxglove_host,
+            )
         except ScanfuseError as err:
             print(f'scanfuse node: {err}', file=sys.stderr)
             return 1
@@ -338,6 +381,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pass
         finally:
             executor.shutdown()
+            fusion.view.close()
             fusion.node.destroy_node()
     finally:
         if ok():
