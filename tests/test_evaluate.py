@@ -155,6 +155,8 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     ):
         assert (out / name).is_file(), name
     assert (out / 'maps' / 'barricade-0_obstacle.yaml').is_file()
+    assert (out / 'maps_barricade-0_lidar_run.png').is_file()
+    assert (out / 'map_after_collision_barricade-0.png').is_file()
     result = EvaluationResult.load(out / 'results.json')
     # NaN is stored as null and read back as NaN: a second round trip is the same text.
     assert EvaluationResult.from_json(result.to_json()).to_json() == result.to_json()

@@ -146,7 +146,12 @@ def markdown(result: EvaluationResult) -> str:
     parts += [
         '## Maps (true poses) against the true footprints',
         '',
-        'Occupied cells within one cell of the truth; IoU exact, inside the observed region.',
+        'Occupied cells within one cell of the truth; IoU exact, inside the observed region. '
+        'Maps are built from the frames of the `obstacle` runs with log-odds ray tracing, as '
+        'slam_toolbox or a costmap would: a low obstacle enters the map while the camera sees '
+        'it, and LiDAR rays that pass over it later (the robot beside or behind it) clear it '
+        "again. The `maps_*_lidar_run.png` figures map the LiDAR-only robot's own run, "
+        'which ends at the obstacle, with its scans and with the fused ones.',
         '',
     ]
     rows = [
@@ -190,6 +195,16 @@ def write_figures(evaluation: Evaluation, out: Path) -> list[str]:
         del snapshot
     for label, map_set in evaluation.maps.items():
         files.append(_maps_figure(label, map_set, out).name)
+    for label, map_set in evaluation.crash_maps.items():
+        files.append(
+            _maps_figure(
+                label,
+                map_set,
+                out,
+                suffix='_lidar_run',
+                title=f"{label}: the LiDAR-only robot's drive, mapped with its scans and fused",
+            ).name
+        )
     files.append(_bars_figure(evaluation, out).name)
     for label, entry in evaluation.collision_logs.items():
         if entry[2].collided:
@@ -254,7 +269,14 @@ def _extent(spec: GridSpec) -> tuple[float, float, float, float]:
     return (x0, x0 + spec.width * spec.resolution, y0, y0 + spec.height * spec.resolution)
 
 
-def _maps_figure(label: str, map_set: MapSet, out: Path) -> Path:
+def _maps_figure(
+    label: str,
+    map_set: MapSet,
+    out: Path,
+    *,
+    suffix: str = '',
+    title: str = '',
+) -> Path:
     panels = [
         (f'{name}: {label}', map_set.grids[name].probability())
         for name in ('lidar', 'obstacle')
@@ -264,8 +286,8 @@ def _maps_figure(label: str, map_set: MapSet, out: Path) -> Path:
         panels,
         map_set.truth,
         _extent(map_set.spec),
-        out / f'maps_{label}.png',
-        title=f'{label}: LiDAR-only map and fused map, true poses',
+        out / f'maps_{label}{suffix}.png',
+        title=title or f'{label}: LiDAR-only map and fused map, the obstacle run, true poses',
         thresholds=(OCCUPIED_THRESH, FREE_THRESH),
     )
 

@@ -179,6 +179,8 @@ class Evaluation:
         self.maps: dict[str, MapSet] = {}
         self.snapshots: dict[str, Snapshot] = {}
         self.collision_logs: dict[str, tuple[World, DriveLog, TrialOutcome, float]] = {}
+        # Maps of the LiDAR-only robot's run, from its own scans and from the fused ones.
+        self.crash_maps: dict[str, MapSet] = {}
 
     def run(self) -> None:
         jobs = [(t, m) for t in self.trials for m in self.settings.closed_loop_methods]
@@ -209,8 +211,22 @@ class Evaluation:
             self.outcomes.append(outcome)
             if keep:
                 self.collision_logs[trial.label] = (sim.world, log, outcome, sim.robot.body_radius)
+                self.crash_maps[trial.label] = self._crash_maps(sim, base, log)
         finally:
             sim.close()
+
+    def _crash_maps(self, sim: Simulation, base: FusionConfig, log: DriveLog) -> MapSet:
+        """LiDAR-only and obstacle maps of the frames the LiDAR-only robot saw (true poses)."""
+        slab = (base.min_obstacle_height, base.max_obstacle_height)
+        maps = _map_set(sim.world, self.settings, slab)
+        fused = MethodRunner(METHODS['obstacle'], base, sim.camera)
+        for record in log.frames:
+            frame = record.lidar
+            pose = (frame.origin[0], frame.origin[1], frame.pose.yaw)
+            maps.grid('lidar').integrate(frame.scan, *pose)
+            scan = fused.scan(frame.scan, record.depth, sim.camera)
+            maps.grid('obstacle').integrate(scan, *pose)
+        return maps
 
     def _scorer(
         self, trial: TrialSpec, sim: Simulation, base: FusionConfig
