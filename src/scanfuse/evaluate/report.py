@@ -18,6 +18,14 @@ if TYPE_CHECKING:
     from scanfuse.evaluate.runner import Evaluation, MapSet
     from scanfuse.sim.worlds import World
 
+MAPS_NOTE = (
+    'Occupied cells within one cell of the truth; IoU exact, inside the observed region. '
+    'Maps are built from the frames of the `obstacle` runs with log-odds ray tracing, as '
+    'slam_toolbox or a costmap would: a low obstacle enters the map while the camera sees '
+    'it, and LiDAR rays that pass over it later (the robot beside or behind it) clear it '
+    "again. The `maps_*_lidar_run.png` figures map the LiDAR-only robot's own run, "
+    'which ends at the obstacle, with its scans and with the fused ones.'
+)
 HEADLINE_TARGETS = {'recall': 0.95, 'false_obstacle_rate': 0.005}
 
 
@@ -146,12 +154,7 @@ def markdown(result: EvaluationResult) -> str:
     parts += [
         '## Maps (true poses) against the true footprints',
         '',
-        'Occupied cells within one cell of the truth; IoU exact, inside the observed region. '
-        'Maps are built from the frames of the `obstacle` runs with log-odds ray tracing, as '
-        'slam_toolbox or a costmap would: a low obstacle enters the map while the camera sees '
-        'it, and LiDAR rays that pass over it later (the robot beside or behind it) clear it '
-        "again. The `maps_*_lidar_run.png` figures map the LiDAR-only robot's own run, "
-        'which ends at the obstacle, with its scans and with the fused ones.',
+        MAPS_NOTE,
         '',
     ]
     rows = [
@@ -299,6 +302,12 @@ def _bars_figure(evaluation: Evaluation, out: Path) -> Path:
         'recall of low obstacles in view': [result.methods[n].scan.recall for n in names],
         'false obstacles (% of slots)': [
             100 * result.methods[n].scan.false_obstacle_rate for n in names
+        ],
+        'goals reached (share of trials)': [
+            (loop.reached / loop.trials)
+            if (loop := result.methods[n].closed_loop)
+            else float('nan')
+            for n in names
         ],
         'collisions (share of trials)': [
             (loop.collisions / loop.trials)
