@@ -12,11 +12,11 @@ $(BIN)/python:
 	$(PIP) install --upgrade pip
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(PIP) install -e .
+	$(PIP) install -e '.[sim]'
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(BIN)/python
-	$(PIP) install -e '.[test,ros,rosbuild,dev]'
+	$(PIP) install -e '.[sim,test,ros,rosbuild,dev]'
 	$(BIN)/python tools/build_tf2_msgs.py
 	touch $@
 

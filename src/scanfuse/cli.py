@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from scanfuse.errors import ScanfuseError
 
@@ -23,6 +24,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 console = Console(stderr=True)
+SIM_MODULES = frozenset({'mujoco', 'matplotlib', 'tifffile'})
 
 
 @app.command()
@@ -170,6 +172,11 @@ def node(
         raise typer.Exit(code)
 
 
+def report_error(message: str) -> None:
+    """One red line, unwrapped, with the message's own brackets shown as they are."""
+    console.print(f'[bold red]error:[/] {escape(message)}', soft_wrap=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `scanfuse` command; returns the exit code."""
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
@@ -179,7 +186,15 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as done:
         return done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
     except ScanfuseError as err:
-        console.print(f'[bold red]error:[/] {err}')
+        report_error(str(err))
+        return 1
+    except ModuleNotFoundError as err:
+        if err.name not in SIM_MODULES:
+            raise
+        report_error(
+            f'{err.name} is not installed; the simulator, evaluation and demo need the '
+            "'sim' extra: pip install 'scanfuse[sim]'"
+        )
         return 1
     except KeyboardInterrupt:
         console.print('[red]aborted[/]')
