@@ -15,6 +15,7 @@ import numpy as np
 
 from common import Row, median_seconds
 from scanfuse.camera import CameraModel
+from scanfuse.config import FusionConfig
 from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.convert.row import row_scan
 from scanfuse.scan import AngleGrid
@@ -28,6 +29,11 @@ EXTRINSICS = Extrinsics.from_mounting(
 GRID = AngleGrid(-math.pi, 2.0 * math.pi / 720, 720)
 LIMITS = {'range_min': 0.2, 'range_max': 10.0}
 SLAB = {'min_obstacle_height': 0.03, 'max_obstacle_height': 0.5}
+# The default per-slot statistic (k nearest within a window), as the pipeline runs it.
+STATISTIC = {
+    'min_points': FusionConfig().obstacle_min_points,
+    'cluster_spread': FusionConfig().obstacle_cluster_spread,
+}
 BOXES = (
     (4.0, 4.2, -10.0, 10.0, 0.0, 3.0),  # wall
     (1.5, 1.8, -0.3, 0.2, 0.0, 0.25),  # box
@@ -68,7 +74,7 @@ def run() -> list[Row]:
     for width, height in SIZES:
         camera = camera_for(width, height)
         depth = scene(camera)
-        projector = ObstacleProjector(camera, EXTRINSICS, GRID, **SLAB, **LIMITS)
+        projector = ObstacleProjector(camera, EXTRINSICS, GRID, **SLAB, **LIMITS, **STATISTIC)
         implementation = 'numba' if projector.uses_kernel else 'numpy (numba missing)'
         obstacle = median_seconds(lambda p=projector, d=depth: p.scan(d))
         rows.append(Row(SECTION, f'obstacle {width}x{height}', obstacle, implementation))

@@ -134,5 +134,7 @@ class FusionPipeline:
                 max_obstacle_height=self.config.max_obstacle_height,
                 range_min=self.config.range_min,
                 range_max=self.config.range_max,
+                min_points=self.config.obstacle_min_points,
+                cluster_spread=self.config.obstacle_cluster_spread,
             )
         return projector
