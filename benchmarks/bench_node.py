@@ -147,7 +147,9 @@ def run() -> list[Row]:
         rows += [
             Row('node', f'latency p50, {label}', float(np.percentile(values, 50)), note),
             Row('node', f'latency p99, {label}', float(np.percentile(values, 99)), note),
-            Row('node', f'node CPU (share of one core), {label}', cpu, 'reported as a fraction'),
+            Row(
+                'node', f'node CPU (share of one core), {label}', cpu, 'user + system', unit='share'
+            ),
         ]
     return rows
 

@@ -17,8 +17,9 @@ class Row:
 
     section: str
     name: str
-    median_s: float
+    median_s: float  # seconds, or a share of one core when `unit` is 'share'
     note: str = ''
+    unit: str = 's'
 
 
 def median_seconds(fn: Callable[[], object], *, repeat: int = 31, min_time: float = 0.02) -> float:

@@ -21,7 +21,9 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 
-def _format(seconds: float) -> str:
+def _format(seconds: float, unit: str = 's') -> str:
+    if unit == 'share':
+        return f'{seconds:.1%}'
     if seconds < 1e-3:
         return f'{seconds * 1e6:.1f} us'
     if seconds < 1.0:
@@ -44,7 +46,7 @@ def main() -> int:
         with console.status(f'running {path.stem}'):
             rows = module.run()
         for row in rows:
-            table.add_row(row.section, row.name, _format(row.median_s), row.note)
+            table.add_row(row.section, row.name, _format(row.median_s, row.unit), row.note)
         table.add_section()
     console.print(table)
     return 0

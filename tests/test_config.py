@@ -20,7 +20,7 @@ def test_defaults_fit_a_d435_above_a_2d_lidar():
     config = FusionConfig()
     assert config.method is Method.OBSTACLE
     assert config.resample is Resampler.CONSERVATIVE
-    assert (config.range_min, config.range_max) == (0.2, 10.0)
+    assert (config.range_min, config.range_max) == (0.2, 3.0)
     assert config.camera_pitch == pytest.approx(math.radians(20))
 
 

@@ -8,7 +8,8 @@ NaN: no valid measurement (no information).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -73,7 +74,7 @@ class Scan:
         """Angle of every reading, radians (float64)."""
         return self.angle_min + self.angle_increment * np.arange(self.ranges.size, dtype=np.float64)
 
-    @property
+    @cached_property
     def grid(self) -> AngleGrid:
         """The angular grid of this scan."""
         return AngleGrid(self.angle_min, self.angle_increment, self.ranges.size)
@@ -90,7 +91,6 @@ class AngleGrid:
     angle_min: float
     angle_increment: float
     count: int
-    angles_cache: AngleArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.count <= 0:
@@ -99,16 +99,20 @@ class AngleGrid:
         if not math.isfinite(self.angle_increment) or self.angle_increment == 0.0:
             msg = f'angle_increment must be finite and non-zero, got {self.angle_increment}'
             raise InputError(msg)
-        angles = self.angle_min + self.angle_increment * np.arange(self.count, dtype=np.float64)
-        angles.setflags(write=False)
-        object.__setattr__(self, 'angles_cache', angles)
 
     @property
     def angle_max(self) -> float:
         return self.angle_min + self.angle_increment * (self.count - 1)
 
     def angles(self) -> AngleArray:
-        return self.angles_cache
+        return self._angles
+
+    @cached_property
+    def _angles(self) -> AngleArray:
+        # Built on first use: grids are made per scan (as dictionary keys) far more often.
+        angles = self.angle_min + self.angle_increment * np.arange(self.count, dtype=np.float64)
+        angles.setflags(write=False)
+        return angles
 
     def slot_of(self, angle: AngleArray) -> npt.NDArray[np.int64]:
         """Index of the slot whose interval (centre +- increment/2) holds `angle`; -1 if none.

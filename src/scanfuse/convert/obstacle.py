@@ -660,6 +660,7 @@ def obstacle_scan(
     range_min: float,
     range_max: float,
     min_points: int = 1,
+    cluster_spread: float = math.inf,
 ) -> Scan:
     """One-off obstacle scan; build an `ObstacleProjector` to convert many frames."""
     projector = ObstacleProjector(
@@ -671,5 +672,6 @@ def obstacle_scan(
         range_min=range_min,
         range_max=range_max,
         min_points=min_points,
+        cluster_spread=cluster_spread,
     )
     return projector.scan(depth)

@@ -38,6 +38,8 @@ D2L_BAND = 10
 # Depth beyond this is left to the LiDAR by the obstacle method: the simulated D435's
 # noise (0.01 Z^2: 9 cm at 3 m) exceeds the 0.05 m + 2 % tolerance beyond it.
 OBSTACLE_RANGE_MAX = 3.0
+# The row methods (the paper, depthimage_to_laserscan) use the camera's full range.
+CAMERA_RANGE_MAX = 10.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,12 @@ class MethodSpec:
 
 
 def _row(resampler: Resampler, **extra: object) -> tuple[tuple[str, object], ...]:
-    return (('method', Method.ROW), ('resample', resampler), *extra.items())
+    return (
+        ('method', Method.ROW),
+        ('resample', resampler),
+        ('range_max', CAMERA_RANGE_MAX),
+        *extra.items(),
+    )
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -99,7 +106,11 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec(
             'obstacle-nearest',
             'obstacle scan, plain nearest point per slot, full depth range',
-            (('method', Method.OBSTACLE), ('obstacle_min_points', 1)),
+            (
+                ('method', Method.OBSTACLE),
+                ('obstacle_min_points', 1),
+                ('range_max', CAMERA_RANGE_MAX),
+            ),
         ),
         MethodSpec(
             'obstacle-nearest-3m',

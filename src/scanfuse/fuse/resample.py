@@ -38,10 +38,10 @@ def _source_offsets(source: AngleGrid, target_angles: npt.NDArray[np.float64]) -
 class LinearPlan:
     """Algorithm 3: linear interpolation between the two source readings around each target."""
 
-    lower: IndexArray
+    lower: IndexArray  # source index below each target; `count` (the NaN pad) outside view
     upper: IndexArray
+    nearest: IndexArray
     weight: FloatArray  # share of `upper`
-    inside: npt.NDArray[np.bool_]
 
     @classmethod
     def build(cls, source: AngleGrid, target: AngleGrid) -> LinearPlan:
@@ -53,19 +53,25 @@ class LinearPlan:
         lower = np.minimum(np.floor(position).astype(np.intp), last)
         upper = np.minimum(lower + 1, last)
         weight = (position - lower).astype(np.float32)
-        return cls(lower, upper, weight, inside)
+        nearest = np.where(weight < 0.5, lower, upper)
+        outside = source.count
+        return cls(
+            np.where(inside, lower, outside),
+            np.where(inside, upper, outside),
+            np.where(inside, nearest, outside),
+            weight,
+        )
 
     def apply(self, ranges: FloatArray) -> FloatArray:
-        low = ranges[self.lower]
-        high = ranges[self.upper]
+        padded = np.append(ranges, np.float32(np.nan))
+        low = padded[self.lower]
+        high = padded[self.upper]
         with np.errstate(invalid='ignore'):
             blended = low + self.weight * (high - low)
-        # Interpolating towards +-Inf or NaN means nothing: take the nearer reading.
-        nearer = np.where(self.weight < 0.5, low, high)
-        both_finite = np.isfinite(low) & np.isfinite(high)
-        out = np.where(both_finite, blended, nearer)
-        out[~self.inside] = np.nan
-        return out.astype(np.float32, copy=False)
+        # Interpolating towards +-Inf or NaN means nothing (the blend is not finite
+        # exactly then): take the nearer reading. Outside the view both are the NaN pad.
+        out: FloatArray = np.where(np.isfinite(blended), blended, padded[self.nearest])
+        return out
 
 
 @dataclass(frozen=True)
