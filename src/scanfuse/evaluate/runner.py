@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import yaml
 
-from scanfuse.config import FusionConfig
 from scanfuse.evaluate.closed_loop import (
     CLOSED_LOOP_TIME_LIMIT,
     DriveLog,
@@ -45,6 +44,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from scanfuse.config import FusionConfig
     from scanfuse.scan import Scan
     from scanfuse.sim.simulation import LidarFrame, Simulation
     from scanfuse.sim.worlds import World
@@ -102,19 +102,9 @@ class NullProgress:
 
 def base_config(sim: Simulation) -> FusionConfig:
     """The fusion configuration that matches the simulated robot's mounting and camera."""
-    robot = sim.robot
-    return FusionConfig(
-        camera_x=robot.camera_x,
-        camera_height=robot.camera_height,
-        camera_pitch=robot.camera_pitch,
-        lidar_x=robot.lidar_x,
-        lidar_height=robot.lidar_height,
-        lidar_yaw=robot.lidar_yaw,
-        range_min=sim.camera_profile.range_min,
-        range_max=sim.camera_profile.range_max,
-        min_obstacle_height=sim.config.min_obstacle_height,
-        max_obstacle_height=sim.config.max_obstacle_height,
-    )
+    from scanfuse.sim.simulation import fusion_config  # noqa: PLC0415
+
+    return fusion_config(sim.config)
 
 
 def make_simulation(trial: TrialSpec, settings: EvaluationSettings) -> Simulation:
