@@ -76,6 +76,9 @@ def _spin_until(node: Any, done: Callable[[], bool], timeout: float) -> bool:
     return True
 
 
+GARBAGE_ROUNDS = 5
+
+
 def garbage_messages() -> list[tuple[str, bytes]]:
     """Malformed depth images: truncated CDR, and a valid Image with the wrong encoding."""
     import numpy as np  # noqa: PLC0415
@@ -123,16 +126,19 @@ def play(
     start_wall = time.monotonic()
     start_log = messages[0][1] if messages else 0
     garbage = garbage_messages() if garbage_at is not None else []
+    # Best effort with a shallow reader queue may drop any one sample under load, so the
+    # malformed images go out with several messages in a row, not once.
+    garbage_rounds = GARBAGE_ROUNDS
     depth_topic = next((t for t, _, _ in messages if t.endswith('image_raw')), None)
     for topic, log_time, raw in messages:
         due = start_wall + (log_time - start_log) / 1e9
         while (delay := due - time.monotonic()) > 0:
             time.sleep(min(delay, 0.01))
-        if garbage and garbage_at is not None and time.monotonic() - start_wall >= garbage_at:
+        due_garbage = garbage_at is not None and time.monotonic() - start_wall >= garbage_at
+        if garbage and depth_topic is not None and due_garbage and garbage_rounds > 0:
             for _, bad in garbage:
-                if depth_topic is not None:
-                    publishers[depth_topic].publish(bad)
-            garbage = []
+                publishers[depth_topic].publish(bad)
+            garbage_rounds -= 1
         publishers[topic].publish(bytes(raw))
     # Let best-effort samples leave before the participant goes away.
     time.sleep(0.2)
