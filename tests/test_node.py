@@ -147,7 +147,9 @@ def test_health_warns_while_the_camera_is_silent_and_recovers():
     health = live.health(1.7)
     assert (health.level, health.state) == (Level.WARN, State.PASS_THROUGH)
     feed(live, messages)
-    assert live.health(2.9).level is Level.OK
+    # The report at 2.9 s covers the silence up to 2.0 s; the one after it is fusing only.
+    assert live.health(2.9).level is Level.WARN
+    assert live.health(3.0).level is Level.OK
 
 
 def test_without_camera_info_the_lidar_passes_through_and_warns_once(caplog):
@@ -309,3 +311,17 @@ def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up(
     live.on_camera_info(camera_to_cdr(recalibrated, stamp_ns=3), 0.2)
     assert live._camera is not None
     assert (live._camera.fx, live._camera.cx, live._camera.cy) == (2 * scene.focal, 10.0, 20.0)
+
+
+def test_a_camera_gap_between_two_reports_is_reported_by_the_next_one():
+    # The gap (1.0 to 2.0 s, camera_timeout 0.3 s) opens and closes between the reports at
+    # 0.9 s and 2.5 s: the report at 2.5 s must still say WARN, whatever the timer's phase.
+    config = FusionConfig(camera_timeout=0.3)
+    messages = scene_messages(Scene(duration=3.0, depth_gap=(1.0, 2.0)))
+    live = LiveFusion(config)
+    feed(live, messages, until=0.9)
+    assert live.health(0.9).level is Level.OK
+    feed(live, messages, until=2.5)
+    health = live.health(2.5)
+    assert (health.level, health.state) == (Level.WARN, State.PASS_THROUGH)
+    assert live.health(2.6).level is Level.OK  # the window after it saw only fused scans

@@ -77,8 +77,8 @@ class Loopback:
     def loopback(self, name: str, *args: str) -> subprocess.Popen:
         return self.start(name, '-m', 'scanfuse.ros.loopback', *args)
 
-    def record(self, *topics: str) -> None:
-        args = []
+    def record(self, *topics: str, drain_until_level: int | None = None) -> None:
+        args = [] if drain_until_level is None else ['--drain-until-level', str(drain_until_level)]
         for topic in topics:
             args += ['--topic', topic]
         self.recorder = self.loopback(
@@ -196,9 +196,11 @@ def test_camera_dropout_malformed_images_and_lidar_loss(tmp_path, loopback_facto
     scene = Scene(duration=3.0, depth_gap=(1.0, 2.0))
     bag = write_scene_bag(tmp_path / 'in.mcap', scene)
     loop = loopback_factory(use_tf=False, camera_timeout=0.3, lidar_timeout=0.5, **SCENE_PARAMS)
-    loop.record('/scan_fused', '/diagnostics')
+    # The recorder stops at the node's first ERROR report after the replay (LiDAR silent),
+    # however long the node's 1 s report timer and lidar_timeout take under load.
+    loop.record('/scan_fused', '/diagnostics', drain_until_level=2)
     assert loop.play(bag, '--garbage-at', '0.5').wait(timeout=60) == 0, loop.log('player')
-    received = loop.received(linger=2.0)
+    received = loop.received(linger=0.0)
     assert loop.node.poll() is None, loop.log('node')  # survived the malformed images
     start = scene.start_ns
     last_before = max(s for s in scene.depth_stamps() if s < start + 1e9)

@@ -115,6 +115,9 @@ class _Window:
     scans: int = 0
     paired: int = 0
     times: list[float] = field(default_factory=list)
+    # Scans passed through because the camera was silent: a report covers its whole window,
+    # so a gap shorter than the report period is not hidden by the timer's phase.
+    silent_camera_ns: int | None = None
 
 
 def _without_stamp(raw: RawMessage) -> bytes | None:
@@ -277,6 +280,7 @@ class LiveFusion:
             )
             return self._pass_through(pending)
         if not self.camera_alive(now):
+            self._window.silent_camera_ns = pending.scan.stamp_ns
             return self._pass_through(pending)
         stamps = np.array([frame.stamp_ns for frame in self._frames], dtype=np.int64)
         index = int(
@@ -373,6 +377,12 @@ class LiveFusion:
             **{f'malformed {kind}': str(count) for kind, count in sorted(self.malformed.items())},
         }
         level, state, message = self._classify(now, camera_age)
+        if level == Level.OK and window.silent_camera_ns is not None:
+            level, state = Level.WARN, State.PASS_THROUGH
+            message = (
+                f'no depth image on {self.config.depth_topic} within camera_timeout for a part '
+                'of the last report period: LiDAR passed through'
+            )
         values['state'] = state.value
         return Health(level, state, message, values)
 

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
 DIAGNOSTICS = 'diagnostic_msgs/msg/DiagnosticArray'
+DRAIN_TIMEOUT_S = 30.0
 DISCOVERY_TIMEOUT_S = 20.0
 
 
@@ -146,6 +147,11 @@ def play(
     return 0
 
 
+def _diagnostic_level(raw: bytes, store: Any) -> int:
+    statuses = store.deserialize_cdr(raw, DIAGNOSTICS).status
+    return max((int(status.level) for status in statuses), default=0)
+
+
 def record(
     out: Path,
     topics: Sequence[str],
@@ -154,10 +160,14 @@ def record(
     ready: Path | None = None,
     stop: Path | None = None,
     expect_publisher: bool = False,
+    drain_until_level: int | None = None,
 ) -> int:
     """Write what arrives on `topics` into an MCAP bag at `out`.
 
-    Records for at most `duration` seconds, or until the file `stop` exists.
+    Records for at most `duration` seconds, or until the file `stop` exists; with
+    `drain_until_level`, after `stop` appears it goes on until a /diagnostics status of at
+    least that level arrives (at most DRAIN_TIMEOUT_S), so a test waits on the node's report
+    instead of guessing how long the node's timers take.
     """
     types = _ros_types()
     node = rclpy.create_node('scanfuse_recorder')
@@ -179,6 +189,16 @@ def record(
     deadline = time.monotonic() + duration
     while time.monotonic() < deadline and not (stop is not None and stop.exists()):
         rclpy.spin_once(node, timeout_sec=0.05)
+    if drain_until_level is not None:
+        stopped_at = len(received)
+
+        def reported() -> bool:
+            return any(
+                topic == '/diagnostics' and _diagnostic_level(raw, store) >= drain_until_level
+                for topic, _, raw in received[stopped_at:]
+            )
+
+        _spin_until(node, reported, DRAIN_TIMEOUT_S)
     node.destroy_node()
     with Writer(out, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
         connections = {
@@ -260,6 +280,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     record_cmd.add_argument('--ready', type=Path, default=None)
     record_cmd.add_argument('--stop', type=Path, default=None)
     record_cmd.add_argument('--expect-publisher', action='store_true')
+    record_cmd.add_argument('--drain-until-level', type=int, default=None)
     param_cmd = commands.add_parser('set-param')
     param_cmd.add_argument('name')
     param_cmd.add_argument('value')
@@ -281,6 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 ready=args.ready,
                 stop=args.stop,
                 expect_publisher=args.expect_publisher,
+                drain_until_level=args.drain_until_level,
             )
         return set_param(args.name, args.value, args.out, go=args.go, after=args.after)
     finally:
