@@ -17,6 +17,7 @@ from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.convert.row import row_scan
 from scanfuse.fuse.merge import merge_scans
 from scanfuse.fuse.resample import Plan, apply_plan, build_plan
+from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
@@ -79,12 +80,19 @@ class FusionPipeline:
         depth: npt.NDArray[np.generic],
         camera: CameraModel,
         extrinsics: Extrinsics | None = None,
+        motion: PlanarMotion = IDENTITY_MOTION,
     ) -> FusedResult:
-        """Fuse one LiDAR scan with one depth image (uint16 mm or float32 m)."""
+        """Fuse one LiDAR scan with one depth image (uint16 mm or float32 m).
+
+        `motion` takes points from the LiDAR frame at the image's stamp to the LiDAR frame at
+        the scan's stamp (`FusionStream` finds it from odometry). The obstacle method moves
+        every point; the row method's scan, whose points are only bearings and ranges from the
+        camera, is turned by the motion's angle.
+        """
         extrinsics = extrinsics or self._default_extrinsics
         start = time.perf_counter()
         if self.config.method is Method.OBSTACLE:
-            depth_scan = self._projector(camera, extrinsics, lidar.grid).scan(depth)
+            depth_scan = self._projector(camera, extrinsics, lidar.grid).scan(depth, motion)
             converted = time.perf_counter()
             on_lidar_grid = depth_scan.with_ranges(
                 depth_scan.ranges, frame_id=lidar.frame_id, stamp_ns=lidar.stamp_ns
@@ -101,6 +109,12 @@ class FusionPipeline:
                 d2l_compat=self.config.d2l_compat,
                 floor_guard=self._floor_guard,
             )
+            if not motion.is_identity:
+                depth_scan = depth_scan.with_ranges(
+                    depth_scan.ranges,
+                    angle_min=depth_scan.angle_min + motion.angle,
+                    angle_max=depth_scan.angle_max + motion.angle,
+                )
             converted = time.perf_counter()
             plan = self._plan(depth_scan.grid, lidar.grid)
             on_lidar_grid = apply_plan(plan, depth_scan, lidar.grid)

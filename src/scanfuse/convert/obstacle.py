@@ -41,6 +41,7 @@ import numpy as np
 
 from scanfuse.camera import MILLIMETRE
 from scanfuse.errors import InputError
+from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.scan import TWO_PI, AngleGrid, Scan, to_rep117
 
 if TYPE_CHECKING:
@@ -157,6 +158,10 @@ def _nearest_squared_loop(
     a_y: Any,
     b_x: np.float32,
     b_y: np.float32,
+    m_cos: np.float32,
+    m_sin: np.float32,
+    m_tx: np.float32,
+    m_ty: np.float32,
     scale: float,
     first: Any,
     second: Any,
@@ -181,8 +186,12 @@ def _nearest_squared_loop(
         if not lo[i] <= z <= hi[i]:  # also drops NaN (float) and 0 (uint16, lo >= 1)
             continue
         z32 = np.float32(z)
-        x = a_x[i] * z32 + b_x
-        y = a_y[i] * z32 + b_y
+        x_seen = a_x[i] * z32 + b_x
+        y_seen = a_y[i] * z32 + b_y
+        # Motion compensation (identity: exactly x_seen, y_seen): the point where it lies
+        # relative to the LiDAR at the scan's stamp.
+        x = m_cos * x_seen - m_sin * y_seen + m_tx
+        y = m_sin * x_seen + m_cos * y_seen + m_ty
         x64 = np.float64(x)
         y64 = np.float64(y)
         norm = abs(x64) + abs(y64)
@@ -231,14 +240,18 @@ def _nearest_squared_numpy(
     a_y: F32,
     b_x: np.float32,
     b_y: np.float32,
+    motion: tuple[np.float32, np.float32, np.float32, np.float32],
     lookup: SlotLookup,
     nearest: F32,
 ) -> None:
     """The reference (and the fallback without numba): the same reduction, vectorised."""
     keep = np.flatnonzero((depth >= lo) & (depth <= hi))
     z = depth[keep].astype(np.float32)
-    x = a_x[keep] * z + b_x
-    y = a_y[keep] * z + b_y
+    x_seen = a_x[keep] * z + b_x
+    y_seen = a_y[keep] * z + b_y
+    m_cos, m_sin, m_tx, m_ty = motion
+    x = m_cos * x_seen - m_sin * y_seen + m_tx
+    y = m_sin * x_seen + m_cos * y_seen + m_ty
     slot = lookup.slots(x.astype(np.float64), y.astype(np.float64))
     inside = slot >= 0
     squared = (x * x + y * y)[inside]
@@ -562,16 +575,24 @@ class ObstacleProjector:
         self.nearest_squared(np.zeros(pixels, dtype=np.uint16))
         self.nearest_squared(np.full(pixels, np.nan, dtype=np.float32))
 
-    def nearest_squared(self, depth: npt.NDArray[Any], *, reference: bool = False) -> F32:
+    def nearest_squared(
+        self,
+        depth: npt.NDArray[Any],
+        *,
+        reference: bool = False,
+        motion: PlanarMotion = IDENTITY_MOTION,
+    ) -> F32:
         """Per slot the k-th smallest squared horizontal range (Inf: fewer than k points).
 
         k is `min_points`.
 
         `depth` is the flattened image, uint16 millimetres or float32 metres.
         `reference=True` runs the numpy version whatever the kernel.
+        `motion` moves every point before it is binned (motion compensation).
         """
         lo, hi, a_x, a_y = self._millimetres if depth.dtype == np.uint16 else self._metres
         b_x, b_y = self._b
+        moved = _motion32(motion)
         lookup = self.lookup
         if self._kernel is not None and not reference:
             self._kernel(
@@ -582,6 +603,7 @@ class ObstacleProjector:
                 a_y,
                 b_x,
                 b_y,
+                *moved,
                 lookup.scale,
                 lookup.first,
                 lookup.second,
@@ -591,12 +613,16 @@ class ObstacleProjector:
                 self._nearest,
             )
         else:
-            _nearest_squared_numpy(depth, lo, hi, a_x, a_y, b_x, b_y, lookup, self._nearest)
+            _nearest_squared_numpy(depth, lo, hi, a_x, a_y, b_x, b_y, moved, lookup, self._nearest)
         self._best[:] = _cluster_range_squared(self._nearest, self.cluster_spread)
         return self._best
 
-    def scan(self, depth: npt.NDArray[np.generic]) -> Scan:
+    def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
+
+        `motion` takes points from the LiDAR frame at the image's stamp to the LiDAR frame
+        at the scan's stamp (motion compensation); the camera's view turns with it by whole
+        slots (its shift by the translation is below a slot at the offsets paired).
 
         On the LiDAR's grid: per slot the horizontal range from the LiDAR's origin of the
         `min_points`-th nearest point in the slab; +Inf where the camera saw valid depth in
@@ -609,8 +635,10 @@ class ObstacleProjector:
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
         flat = np.ascontiguousarray(depth).ravel()
-        best = self.nearest_squared(flat)
+        best = self.nearest_squared(flat, motion=motion)
         seen = self.coverage.seen(self._valid_centres(depth))
+        if not motion.is_identity:
+            seen = _turn_slots(seen, motion.angle, self.grid)
         empty = np.where(seen, np.float32(np.inf), np.float32(np.nan))
         ranges = np.where(np.isfinite(best), np.sqrt(best), empty)
         ranges = to_rep117(ranges, self.range_min, self.range_max)
@@ -623,6 +651,31 @@ class ObstacleProjector:
             range_max=self.range_max,
             ranges=ranges,
         )
+
+
+def _motion32(motion: PlanarMotion) -> tuple[np.float32, np.float32, np.float32, np.float32]:
+    return (
+        np.float32(motion.cos),
+        np.float32(motion.sin),
+        np.float32(motion.tx),
+        np.float32(motion.ty),
+    )
+
+
+def _turn_slots(mask: Mask, angle: float, grid: AngleGrid) -> Mask:
+    """`mask` of slots turned by `angle` (whole slots; wraps on a grid that fills the turn)."""
+    shift = round(angle / grid.angle_increment)
+    if shift == 0:
+        return mask
+    if abs(grid.count * grid.angle_increment) >= TWO_PI - abs(grid.angle_increment) / 2:
+        return np.roll(mask, shift)
+    turned = np.zeros_like(mask)
+    if abs(shift) < mask.size:
+        if shift > 0:
+            turned[shift:] = mask[:-shift]
+        else:
+            turned[:shift] = mask[-shift:]
+    return turned
 
 
 def _check_limits(
