@@ -21,10 +21,11 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from scanfuse import BagError, FusionConfig, MessageError, TransformError
+from scanfuse import BagError, FusionConfig, TransformError
 from scanfuse.cli import main
+from scanfuse.frames import StampedTransform
 from scanfuse.ros.bag import Storage, fuse_bag
-from scanfuse.ros.messages import camera_to_cdr
+from scanfuse.ros.messages import TF_MESSAGE, camera_to_cdr, tf_message_to_cdr
 from scanfuse.ros.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 GAP = (0.5, 0.9)
@@ -198,10 +199,32 @@ def test_extrinsics_fall_back_to_parameters_with_a_warning(tmp_path, caplog):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_tf=False))
     with caplog.at_level(logging.WARNING, logger='scanfuse.ros.bag'):
         report = fuse_bag(source, tmp_path / 'out')
-    assert report.extrinsics_source == 'parameters'
-    assert "extrinsics from the parameters, not TF: frame 'base_link' is not in the TF tree" in (
-        caplog.text
-    )
+    assert report.extrinsics_source == 'parameters (TF has neither sensor frame)'
+    assert 'extrinsics from the parameters (TF has neither sensor frame)' in caplog.text
+
+
+def test_tf_that_does_not_reach_base_frame_is_refused_naming_the_roots(tmp_path):
+    # As a real PSENscan recording: laser_1_mount_link -> laser_1 -> laser_1_scan, no base_link.
+    scene = Scene(duration=0.3, publish_tf=False)
+    tree = [
+        StampedTransform('laser_1_mount_link', 'laser_1', (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0)),
+        StampedTransform('laser_1', 'laser', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+    ]
+    messages = [
+        ('/tf_static', TF_MESSAGE, scene.start_ns, tf_message_to_cdr(tree)),
+        *scene_messages(scene),
+    ]
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(
+        TransformError,
+        match=r"TF does not connect base_frame 'base_link' .*TF roots: laser_1_mount_link; "
+        r"base_frame 'laser_1_mount_link'\?.*use_tf: false",
+    ):
+        fuse_bag(source, tmp_path / 'out')
+    assert not (tmp_path / 'out').exists()
+    # The user's choice of the mounting parameters is respected.
+    report = fuse_bag(source, tmp_path / 'out', config=FusionConfig(use_tf=False))
+    assert report.extrinsics_source == 'parameters (use_tf is false)'
 
 
 def test_require_tf_without_tf_is_an_error(tmp_path):
@@ -214,7 +237,7 @@ def test_require_tf_without_tf_is_an_error(tmp_path):
 def test_use_tf_false_takes_the_parameters(tmp_path):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
     report = fuse_bag(source, tmp_path / 'out', config=FusionConfig(use_tf=False))
-    assert report.extrinsics_source == 'parameters'
+    assert report.extrinsics_source == 'parameters (use_tf is false)'
 
 
 def test_output_exists_is_an_error_unless_overwrite(tmp_path):
@@ -280,7 +303,7 @@ def test_several_scan_topics_need_a_choice(tmp_path):
     assert report.topics.scan == '/scan2'
 
 
-def test_depth_image_of_another_size_than_camera_info_is_rejected(tmp_path):
+def test_depth_image_of_another_size_than_camera_info_is_skipped_and_listed(tmp_path):
     scene = Scene(duration=0.3)
     small = scene.camera.__class__.from_intrinsics(80, 60, 50, 50, 40, 30, frame_id='o')
     messages = [
@@ -288,8 +311,34 @@ def test_depth_image_of_another_size_than_camera_info_is_rejected(tmp_path):
         for topic, m, t, raw in scene_messages(scene)
     ]
     source = write_bag(tmp_path / 'in', messages)
-    with pytest.raises(MessageError, match=r'is 160x120 but its CameraInfo says 80x60'):
-        fuse_bag(source, tmp_path / 'out')
+    report = fuse_bag(source, tmp_path / 'out')
+    frames = sum(topic == '/camera/depth/image_raw' for topic, *_ in messages)
+    assert len(report.malformed) == frames
+    assert report.scans_paired == 0
+    assert report.scans_passed_through == report.scans == 3
+    first = report.malformed[0]
+    assert first.topic == '/camera/depth/image_raw'
+    assert 'is 160x120 but its CameraInfo says 80x60' in first.reason
+    # Every input message is still in the output, and one /scan_fused per scan.
+    assert report.messages_written == report.messages_read + report.scans
+
+
+def test_strict_stops_at_the_first_malformed_message_naming_it(tmp_path):
+    scene = Scene(duration=0.3)
+    small = scene.camera.__class__.from_intrinsics(80, 60, 50, 50, 40, 30, frame_id='o')
+    messages = [
+        (topic, m, t, camera_to_cdr(small, stamp_ns=t) if topic.endswith('camera_info') else raw)
+        for topic, m, t, raw in scene_messages(scene)
+    ]
+    source = write_bag(tmp_path / 'in', messages)
+    index = next(i for i, (topic, *_) in enumerate(messages) if topic.endswith('image_raw'))
+    log_time = messages[index][2] / 1e9
+    with pytest.raises(
+        BagError,
+        match=rf'--strict: malformed message {index} on /camera/depth/image_raw at log time '
+        rf'{log_time:.9f} s: .*is 160x120 but its CameraInfo says 80x60',
+    ):
+        fuse_bag(source, tmp_path / 'out', strict=True)
     assert not (tmp_path / 'out').exists()
     assert not list(tmp_path.glob('.out.*'))
 

@@ -296,9 +296,9 @@ def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up(
     scene = Scene()
     live = LiveFusion(FusionConfig(use_tf=False))
     live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=1), 0.0)
-    first = live._camera
+    first = live.stream.camera
     live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=2), 0.1)
-    assert live._camera is first  # same calibration, new stamp: the model is kept
+    assert live.stream.camera is first  # same calibration, new stamp: the model is kept
     recalibrated = CameraModel.from_intrinsics(
         scene.width,
         scene.height,
@@ -309,8 +309,12 @@ def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up(
         frame_id=scene.camera.frame_id,
     )
     live.on_camera_info(camera_to_cdr(recalibrated, stamp_ns=3), 0.2)
-    assert live._camera is not None
-    assert (live._camera.fx, live._camera.cx, live._camera.cy) == (2 * scene.focal, 10.0, 20.0)
+    assert live.stream.camera is not None
+    assert (live.stream.camera.fx, live.stream.camera.cx, live.stream.camera.cy) == (
+        2 * scene.focal,
+        10.0,
+        20.0,
+    )
 
 
 def test_a_camera_gap_between_two_reports_is_reported_by_the_next_one():

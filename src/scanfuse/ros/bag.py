@@ -46,27 +46,25 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
-from scanfuse.pipeline import FusionPipeline
+from scanfuse.frames import frame_name
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
     TF_MESSAGE,
-    DepthImage,
     Distro,
     camera_from_msg,
     check_depth_matches_camera,
     depth_from_msg,
     deserialize,
-    frame_name,
     is_depth_encoding,
+    odometry_from_msg,
     scan_from_msg,
     scan_to_cdr,
     transforms_from_msg,
 )
-from scanfuse.ros.sync import StreamPairer, seconds_to_ns
-from scanfuse.ros.tf import TransformStore
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.stream import FusionStream
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -75,13 +73,14 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
     from scanfuse.camera import CameraModel
-    from scanfuse.ros.sync import Pair
-    from scanfuse.scan import Scan
+    from scanfuse.stream import StreamOutput
 
 logger = logging.getLogger(__name__)
 
 TF_STATIC_TOPIC = '/tf_static'
 TF_TOPIC = '/tf'
+# How much later than its stamp order a depth frame may be logged and still be paired.
+REORDER_S = 0.5
 # Every error a damaged or unreadable bag can raise inside rosbags and its storage back ends.
 _READ_ERRORS = (
     AnyReaderError,
@@ -185,6 +184,8 @@ class BagReport:
     bag_duration_s: float
     wall_time_s: float
     scan_times_s: tuple[float, ...] = field(repr=False)
+    scans_compensated: int = 0
+    malformed: tuple[MalformedMessage, ...] = ()
 
     @property
     def median_scan_time_s(self) -> float:
@@ -211,12 +212,17 @@ class BagReport:
             ('messages written', str(self.messages_written)),
             ('scans paired with depth', str(self.scans_paired)),
             ('scans passed through (no depth)', str(self.scans_passed_through)),
+            ('scans motion-compensated', str(self.scans_compensated)),
+            ('malformed messages skipped', str(len(self.malformed))),
             ('depth frames', str(self.depth_frames)),
             ('median time per scan', f'{self.median_scan_time_s * 1e3:.2f} ms'),
             ('p99 time per scan', f'{self.p99_scan_time_s * 1e3:.2f} ms'),
             ('wall time', f'{self.wall_time_s:.2f} s'),
             ('real-time factor', f'{self.real_time_factor:.1f}x'),
         ]
+        rows += [(f'  skipped: {item.topic}', item.describe()) for item in self.malformed[:10]]
+        if len(self.malformed) > 10:
+            rows.append(('  skipped', f'... and {len(self.malformed) - 10} more'))
         for name, value in rows:
             table.add_row(name, value)
         return table
@@ -236,8 +242,13 @@ def fuse_bag(
     require_tf: bool = False,
     distro: Distro = Distro.HUMBLE,
     progress: BagProgress | None = None,
+    strict: bool = False,
 ) -> BagReport:
-    """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag."""
+    """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag.
+
+    A malformed message is copied through when it can be, skipped by the fusion and listed in
+    the report; with `strict` it stops the run with an error naming it.
+    """
     config = config or FusionConfig()
     source, target = Path(input), Path(output)
     storage = _storage(storage)
@@ -251,7 +262,9 @@ def fuse_bag(
             job = _BagJob(reader, config, distro, write_depth_scan=write_depth_scan)
             topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
             job.read_static(require_tf=require_tf)
-            counts = job.run(staging / target.name, storage, progress or NullProgress())
+            counts = job.run(
+                staging / target.name, storage, progress or NullProgress(), strict=strict
+            )
         _move_into_place(staging / target.name, target, overwrite=overwrite)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -351,15 +364,26 @@ def describe_topics(topics: dict[str, str]) -> str:
     return ', '.join(f'{name} ({msgtype})' for name, msgtype in sorted(topics.items())) or 'none'
 
 
-@dataclass
-class _Frame:
-    image: DepthImage
-    camera: CameraModel
+@dataclass(frozen=True)
+class MalformedMessage:
+    """An input message that could not be used: where it is and why."""
+
+    topic: str
+    index: int  # position among all messages of the bag, from 0
+    log_time_ns: int
+    reason: str
+
+    def describe(self) -> str:
+        return (
+            f'message {self.index} on {self.topic} at log time {self.log_time_ns / 1e9:.9f} s: '
+            f'{self.reason}'
+        )
 
 
-@dataclass
-class _PendingScan:
-    scan: Scan
+@dataclass(frozen=True)
+class _Lidar:
+    """What the stream hands back with a scan: its CDR and log time."""
+
     raw: bytes
     log_time: int
 
@@ -384,8 +408,11 @@ class _BagJob:
         self.converters: dict[str, Callable[[bytes], bytes]] = {}
         self.choice: TopicChoice | None = None
         self.first_camera: CameraModel | None = None
-        self.extrinsics = Extrinsics.from_config(config)
-        self.extrinsics_source = 'parameters'
+        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
+        # or until no frame logged up to REORDER_S late can still be near enough.
+        self.stream: FusionStream[_Lidar] = FusionStream(
+            config, pair_wait=config.max_time_offset + REORDER_S, release_when_silent=False
+        )
         self.scan_frame = ''
         self.depth_frame = ''
 
@@ -556,48 +583,41 @@ class _BagJob:
             raise BagError(msg)
         self.scan_frame = frame_name(str(scan.header.frame_id))
         self.depth_frame = frame_name(str(depth.header.frame_id) or info.header.frame_id)
-        tree = self._read_tf()
-        base = self.config.base_frame
-        try:
-            self.extrinsics = self._extrinsics_from_tf(tree)
-        except TransformError as err:
-            if require_tf:
-                msg = f'--require-tf: no extrinsics from TF in {self.source}: {err}'
-                raise TransformError(msg) from err
-            logger.warning('extrinsics from the parameters, not TF: %s', err)
-        else:
-            self.extrinsics_source = f'TF ({base} -> {self.scan_frame}, {self.depth_frame})'
-
-    def _extrinsics_from_tf(self, tree: TransformStore) -> Extrinsics:
-        if not self.config.use_tf:
-            msg = 'use_tf is false in the parameters'
+        self._read_mounting()
+        choice = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
+        if choice.extrinsics is None:
+            raise TransformError(choice.source)
+        if require_tf and not choice.source.startswith('TF'):
+            msg = f'--require-tf: no extrinsics from TF in {self.source}: {choice.source}'
             raise TransformError(msg)
-        base = self.config.base_frame
-        return Extrinsics(
-            base_to_laser=Transform.from_matrix(tree.lookup(base, self.scan_frame)),
-            base_to_camera_optical=Transform.from_matrix(tree.lookup(base, self.depth_frame)),
-        )
+        if not choice.source.startswith('TF'):
+            logger.warning('extrinsics from the %s', choice.source)
 
-    def _read_tf(self) -> TransformStore:
-        tree = TransformStore()
+    @property
+    def extrinsics_source(self) -> str:
+        return self.stream.extrinsics_source
+
+    def _read_mounting(self) -> None:
+        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it)."""
         for topic, static in ((TF_STATIC_TOPIC, True), (TF_TOPIC, False)):
             connections = [c for c in self.connections(topic) if self.msgtype(c) == TF_MESSAGE]
             for connection, _, raw in self.messages(connections):
-                tree.add_all(transforms_from_msg(self.decode(connection, raw)), static=static)
-        return tree
+                transforms = transforms_from_msg(self.decode(connection, raw))
+                self.stream.add_transforms(transforms, static=static, odometry=False)
 
     # ------------------------------------------------------------ the pass
 
-    def run(self, path: Path, storage: Storage, progress: BagProgress) -> dict[str, Any]:
+    def run(
+        self, path: Path, storage: Storage, progress: BagProgress, *, strict: bool = False
+    ) -> dict[str, Any]:
+        """Copy every message, feed the stream in log-time order, write what it releases."""
         assert self.choice is not None
         assert self.first_camera is not None
-        pipeline = FusionPipeline(self.config)
-        pairer: StreamPairer[_PendingScan, _Frame] = StreamPairer(
-            seconds_to_ns(self.config.max_time_offset)
-        )
-        camera = self.first_camera
-        counts = {'messages_read': 0, 'scans': 0, 'depth_frames': 0, 'scans_paired': 0}
+        stream = self.stream
+        stream.add_camera_info(self.first_camera)
+        counts = {'messages_read': 0}
         times: list[float] = []
+        malformed: list[MalformedMessage] = []
         writer = Writer(path, version=8, storage_plugin=_PLUGINS[storage])
         try:
             writer.open()
@@ -613,43 +633,44 @@ class _BagJob:
                 else None
             )
 
-            def emit(pairs: list[Pair[_PendingScan, _Frame]]) -> None:
-                for pair in pairs:
-                    lidar = pair.scan
-                    if pair.depth is None:
+            def emit(released: list[StreamOutput[_Lidar]]) -> None:
+                for result in released:
+                    lidar = result.token
+                    if result.fused is None:
                         writer.write(fused_conn, lidar.log_time, lidar.raw)
                         continue
                     start = time.perf_counter()
-                    result = pipeline.fuse(
-                        lidar.scan, pair.depth.image.depth, pair.depth.camera, self.extrinsics
-                    )
                     fused = scan_to_cdr(result.fused, self.store)
-                    depth_raw = scan_to_cdr(result.depth_scan, self.store) if depth_conn else b''
-                    times.append(time.perf_counter() - start)
+                    depth_raw = (
+                        scan_to_cdr(result.depth_scan, self.store)
+                        if depth_conn is not None and result.depth_scan is not None
+                        else None
+                    )
+                    if result.timings is not None:
+                        times.append(result.timings.total + time.perf_counter() - start)
                     writer.write(fused_conn, lidar.log_time, fused)
-                    if depth_conn is not None:
+                    if depth_conn is not None and depth_raw is not None:
                         writer.write(depth_conn, lidar.log_time, depth_raw)
-                    counts['scans_paired'] += 1
 
             progress.start(self.reader.message_count)
             try:
-                for connection, log_time, raw in self.messages(self.reader.connections):
+                for index, (connection, log_time, raw) in enumerate(
+                    self.messages(self.reader.connections)
+                ):
                     counts['messages_read'] += 1
-                    cdr = self.to_cdr(connection, raw)
+                    try:
+                        cdr = self.to_cdr(connection, raw)
+                    except MessageError as err:
+                        self._malformed(malformed, connection.topic, index, log_time, err, strict)
+                        progress.advance()
+                        continue
                     writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
-                    if connection.topic == self.choice.scan:
-                        scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
-                        counts['scans'] += 1
-                        emit(pairer.add_scan(scan.stamp_ns, _PendingScan(scan, cdr, log_time)))
-                    elif connection.topic == self.choice.depth:
-                        image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
-                        check_depth_matches_camera(image, camera)
-                        counts['depth_frames'] += 1
-                        emit(pairer.add_depth(image.stamp_ns, _Frame(image, camera)))
-                    elif connection.topic == self.choice.camera_info:
-                        camera = camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store))
+                    try:
+                        emit(self._feed(connection, cdr, log_time))
+                    except (MessageError, SerdeError, ValueError, struct.error) as err:
+                        self._malformed(malformed, connection.topic, index, log_time, err, strict)
                     progress.advance()
-                emit(pairer.finish())
+                emit(stream.finish())
             finally:
                 progress.stop()
             written = sum(writer.counts.values())
@@ -662,13 +683,60 @@ class _BagJob:
             if writer.storage is not None:
                 writer.abort()
             raise
+        stream_counts = stream.counts
         return {
             **counts,
             'messages_written': written,
-            'scans_passed_through': counts['scans'] - counts['scans_paired'],
-            'peak_depth_frames': pairer.peak_frames,
+            'scans': stream_counts.scans,
+            'depth_frames': stream_counts.depth_frames,
+            'scans_paired': stream_counts.fused,
+            'scans_passed_through': stream_counts.passed_through,
+            'scans_compensated': stream_counts.compensated,
+            'peak_depth_frames': stream_counts.peak_frames,
+            'malformed': tuple(malformed),
             'scan_times_s': tuple(times),
         }
+
+    def _feed(
+        self, connection: Connection, cdr: bytes, log_time: int
+    ) -> list[StreamOutput[_Lidar]]:
+        """One input message into the stream; the scans it releases."""
+        assert self.choice is not None
+        topic, stream = connection.topic, self.stream
+        if topic == self.choice.scan:
+            scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
+            return stream.add_scan(scan, _Lidar(cdr, log_time), log_time)
+        if topic == self.choice.depth:
+            image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
+            if stream.camera is not None:
+                check_depth_matches_camera(image, stream.camera)
+            return stream.add_depth(image.stamp_ns, image.depth, log_time, image.frame_id)
+        if topic == self.choice.camera_info:
+            stream.add_camera_info(camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store)))
+        elif topic == TF_TOPIC and self.msgtype(connection) == TF_MESSAGE:
+            stream.add_transforms(
+                transforms_from_msg(deserialize(cdr, TF_MESSAGE, self.store)), static=False
+            )
+        elif topic == self.config.odom_topic and self.msgtype(connection) == ODOMETRY:
+            sample = odometry_from_msg(deserialize(cdr, ODOMETRY, self.store))
+            stream.add_odometry(sample.stamp_ns, sample.pose)
+        return stream.tick(log_time)
+
+    def _malformed(
+        self,
+        found: list[MalformedMessage],
+        topic: str,
+        index: int,
+        log_time: int,
+        err: Exception,
+        strict: bool,
+    ) -> None:
+        item = MalformedMessage(topic, index, log_time, str(err) or type(err).__name__)
+        if strict:
+            msg = f'--strict: malformed {item.describe()}'
+            raise BagError(msg) from err
+        found.append(item)
+        self.stream.note_malformed(topic, err)
 
     def _add_connections(self, writer: Writer) -> dict[tuple[int, int], Connection]:
         """One output connection per input connection (ROS 1 connections of a topic merge)."""

@@ -79,6 +79,10 @@ TF_STATIC_QOS = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
+# Best effort matches reliable and best-effort odometry publishers alike.
+ODOMETRY_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
+)
 # Fire just after a deadline, so `now >= deadline` holds when the timer runs.
 DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
@@ -175,6 +179,7 @@ class ScanfuseNode:
         self.node.create_subscription(
             CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
         )
+        self.odometry_source = self._subscribe_odometry(config.odom_topic)
         self.fused_pub = self.node.create_publisher(LaserScan, config.fused_topic, OUTPUT_QOS)
         self.depth_pub = (
             self.node.create_publisher(LaserScan, config.depth_scan_topic, OUTPUT_QOS)
@@ -191,7 +196,8 @@ class ScanfuseNode:
         self.deadline_due: float | None = None
         self.rosout.info(
             f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
-            f'(method {config.method.value}; extrinsics: {self.tf_source})'
+            f'(method {config.method.value}; extrinsics: {self.tf_source}; '
+            f'odometry: {self.odometry_source})'
         )
         if isinstance(self.view, FoxgloveView):
             self.rosout.info(f'Foxglove live view on {self.view.url}')
@@ -211,6 +217,17 @@ class ScanfuseNode:
         )
         self.node.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS, raw=True)
         return '/tf_static and /tf, else parameters'
+
+    def _subscribe_odometry(self, topic: str) -> str:
+        try:
+            from nav_msgs.msg import Odometry  # noqa: PLC0415 - the ros extra has it
+        except ImportError:
+            return f'TF only (nav_msgs is not installed, {topic} is not read)'
+        self.node.create_subscription(Odometry, topic, self._on_odometry, ODOMETRY_QOS, raw=True)
+        return f'{topic} and TF'
+
+    def _on_odometry(self, raw: bytes) -> None:
+        self._guard('odometry', lambda: self.live.on_odometry(raw))
 
     def _on_tf_static(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=True)

@@ -44,12 +44,12 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
+from scanfuse.frames import StampedTransform
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
     TF_MESSAGE,
-    StampedTransform,
     camera_to_cdr,
     depth_to_cdr,
     scan_to_cdr,
