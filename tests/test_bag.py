@@ -1,6 +1,6 @@
 """`fuse_bag` and `scanfuse bag` on real bags written with rosbags into tmp_path.
 
-The scene (scanfuse.ros.synthetic): a wall at x = 2 m seen by the LiDAR (0.3 m up),
+The scene (tests.support.synthetic): a wall at x = 2 m seen by the LiDAR (0.3 m up),
 a 0.2 m high box whose front face is at x = 1.2 m, |y| <= 0.15 m, below the LiDAR's
 plane, and a depth camera 0.45 m up pitched 20 degrees down, all published on
 /tf_static. 2 s of 10 Hz scans and 30 Hz depth with no depth between 0.5 s and 0.9 s.
@@ -26,7 +26,7 @@ from scanfuse.cli import main
 from scanfuse.frames import StampedTransform
 from scanfuse.ros.bag import Storage, fuse_bag
 from scanfuse.ros.messages import TF_MESSAGE, camera_to_cdr, tf_message_to_cdr
-from scanfuse.ros.synthetic import Scene, scene_messages, write_bag, write_scene_bag
+from tests.support.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 GAP = (0.5, 0.9)
 # Scans at 0.0, 0.1, ..., 1.9 s; frames at 1/90 s + k/30 s, none in [0.5, 0.9).

@@ -1,6 +1,6 @@
 """The live node's decisions (`LiveFusion`) and parameters, without DDS.
 
-Messages are the CDR bytes of a synthetic scene (`scanfuse.ros.synthetic`): a
+Messages are the CDR bytes of a synthetic scene (`tests.support.synthetic`): a
 wall at x = 2 m that the LiDAR sees and a 0.2 m high box whose front face is at
 x = 1.2 m, below the LiDAR's plane, that only the camera sees. The LiDAR is at
 the base origin, so straight ahead the fused range must be 1.2 m (the box) and
@@ -24,7 +24,6 @@ from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.live import Level, LiveFusion, State
-from scanfuse.ros.loopback import garbage_messages
 from scanfuse.ros.messages import (
     camera_to_cdr,
     depth_to_cdr,
@@ -38,7 +37,8 @@ from scanfuse.ros.params import (
     config_from_ros,
     fusion_param_specs,
 )
-from scanfuse.ros.synthetic import Scene, scene_messages, write_bag
+from tests.support.loopback import garbage_messages
+from tests.support.synthetic import Scene, scene_messages, write_bag
 
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
 BOX = 1.2  # metres straight ahead: the box's front face

@@ -37,8 +37,8 @@ def deskew_scan(scan: Scan, angle: F64, tx: F64, ty: F64) -> Scan:
     ranges = normalized_ranges(scan).astype(np.float64)
     bearings = scan.angles()
     finite = np.isfinite(ranges)
-    x = np.where(finite, ranges * np.cos(bearings), 0.0)
-    y = np.where(finite, ranges * np.sin(bearings), 0.0)
+    reach = np.where(finite, ranges, 0.0)
+    x, y = reach * np.cos(bearings), reach * np.sin(bearings)
     cos, sin = np.cos(angle), np.sin(angle)
     moved_x = cos * x - sin * y + tx
     moved_y = sin * x + cos * y + ty

@@ -7,19 +7,15 @@ from scanfuse.ros.messages import (
     Distro,
     typestore,
 )
-from scanfuse.ros.sync import Pair, StreamPairer, pair_nearest
 
 __all__ = [
     'BagReport',
     'DepthImage',
     'Distro',
-    'Pair',
     'StampedTransform',
     'Storage',
-    'StreamPairer',
     'TopicChoice',
     'TransformStore',
     'fuse_bag',
-    'pair_nearest',
     'typestore',
 ]
