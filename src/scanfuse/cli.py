@@ -34,8 +34,11 @@ console = Console(stderr=True)
 SIM_MODULES = frozenset({'mujoco', 'matplotlib', 'tifffile'})
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so every `finally` and cleanup runs."""
+class Terminated(BaseException):
+    """SIGTERM, raised as Ctrl-C raises KeyboardInterrupt, so every `finally` and cleanup runs.
+
+    Not a KeyboardInterrupt: typer turns those into exit code 130 before `main` sees them.
+    """
 
     def __init__(self, signum: int) -> None:
         super().__init__(signum)
