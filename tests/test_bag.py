@@ -8,11 +8,13 @@ plane, and a depth camera 0.45 m up pitched 20 degrees down, all published on
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import logging
 import math
 import os
 import shutil
+from time import time as wall_clock
 from pathlib import Path  # noqa: TC003 - used at run time by pytest fixtures
 
 import numpy as np
@@ -524,3 +526,42 @@ def test_cli_bag_command(tmp_path, capsys):
 
 def test_storage_enum_values():
     assert [s.value for s in Storage] == ['mcap', 'sqlite3']
+
+
+def _staging_like(parent: Path, name: str, *, lock: bool = True, extra: str | None = None) -> Path:
+    """A folder as a run of `fuse_bag` to `parent/name` leaves it: lock, name/name.mcap."""
+    folder = parent / f'.{name}.abcd_123.partial'
+    (folder / name).mkdir(parents=True)
+    (folder / name / f'{name}.mcap').write_bytes(b'\x89MCAP0\r\n')
+    if lock:
+        (folder / '.lock').touch()
+    if extra is not None:
+        (folder / extra).write_text('mine')
+    return folder
+
+
+def test_sweep_removes_only_stale_staging_folders_of_our_naming(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.2))
+    work = tmp_path / 'work'
+    work.mkdir()
+    stale = _staging_like(work, 'a')  # its lock is free: the run that made it is gone
+    live = _staging_like(work, 'b')  # locked below, as a running fuse_bag holds it
+    foreign = _staging_like(work, 'c', extra='notes.txt')  # something we never write
+    old_unlocked = _staging_like(work, 'd', lock=False)  # an earlier version's leftover
+    hour_ago = wall_clock() - 3600
+    for path in [old_unlocked, *old_unlocked.rglob('*')]:
+        os.utime(path, (hour_ago, hour_ago))
+    fresh_unlocked = _staging_like(work, 'e', lock=False)  # mkdtemp done, lock not yet made
+    other_names = [work / '.f.partial', work / '.g.abc.partial', work / 'h.abcd_123.partial']
+    for folder in other_names:
+        (folder / 'x').mkdir(parents=True)
+    link = work / '.i.abcd_123.partial'
+    link.symlink_to(stale)
+    with (live / '.lock').open('rb') as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fuse_bag(source, work / 'out')
+        fuse_bag(source, work / 'out2')  # a second sweep sees the same: nothing more to take
+    left = sorted(p.name for p in work.iterdir())
+    kept = [live, foreign, fresh_unlocked, *other_names, link]
+    assert left == sorted([p.name for p in kept] + ['out', 'out2'])
+    assert (foreign / 'notes.txt').read_text() == 'mine'
