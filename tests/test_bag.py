@@ -14,8 +14,8 @@ import logging
 import math
 import os
 import shutil
-from time import time as wall_clock
 from pathlib import Path  # noqa: TC003 - used at run time by pytest fixtures
+from time import time as wall_clock
 
 import numpy as np
 import pytest
