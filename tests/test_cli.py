@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -228,3 +229,85 @@ def test_config_error_from_the_params_file_is_one_line(tmp_path, capsys):
     assert err.startswith('error: ')
     assert 'no_such_parameter' in err
     assert len(err.strip().splitlines()) == 1
+
+
+# `scanfuse simulate` whose drive says when the recording is under way, then waits on stdin.
+BLOCKING_SIMULATE = """
+import sys
+import scanfuse.sim.cli as sim_cli
+from scanfuse.cli import main
+
+scripted = sim_cli.scripted_path
+
+def blocking_path(name):
+    drive = scripted(name)
+    calls = 0
+
+    def controller(observation):
+        nonlocal calls
+        calls += 1
+        if calls == 5:
+            print('recording', flush=True)
+            sys.stdin.readline()
+        return drive(observation)
+
+    return controller
+
+sim_cli.scripted_path = blocking_path
+raise SystemExit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize('name', ['run.mcap', 'run'])
+def test_sigterm_while_simulating_leaves_nothing(tmp_path, name):
+    pytest.importorskip('mujoco')
+    out = tmp_path / name
+    argv = ['simulate', '--world', 'room', '--depth-backend', 'multiray', '--resolution', '256x144',
+            '--duration', '30', '--out', str(out)]  # fmt: skip
+    child = subprocess.Popen(
+        [sys.executable, '-c', BLOCKING_SIMULATE, *argv],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert child.stdout is not None
+    line = child.stdout.readline()
+    assert line == 'recording\n', child.communicate(timeout=60)
+    (staging,) = staging_folders(tmp_path, name)
+    assert (staging / name / f'{name}.mcap').is_file()
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 128 + signal.SIGTERM, err
+    assert 'Traceback' not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ('ros_args', 'problem'),
+    [
+        # Ranges and types are the descriptors' (scanfuse.ros.params); rclpy checks overrides.
+        (['-p', 'max_time_offset:=9.0'], r'max_time_offset out of range .*; fix the -p override'),
+        (['-p', 'obstacle_min_points:=abc'], r"expecting type 'INTEGER'.*; fix the -p override"),
+        (['-p', 'scan_topic:=bad topic'], r"Invalid topic name: .*'bad topic'; fix the topic"),
+        (['-r', '__node:=bad.name'], r"Couldn't parse remap rule: '-r __node:=bad.name'.*; ROS"),
+    ],
+)
+def test_node_start_up_errors_are_one_line(ros_args, problem):
+    pytest.importorskip('rclpy')
+    env = {
+        **os.environ,
+        'ROS_DOMAIN_ID': str(220 + os.getpid() % 10),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+    }
+    command = [sys.executable, '-m', 'scanfuse.cli', 'node', '--ros-args', *ros_args]
+    child = subprocess.Popen(command, env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == 1, err
+    assert 'Traceback' not in err
+    (line,) = [line for line in err.splitlines() if line.startswith('scanfuse node: ')]
+    assert re.search(problem, line), line
