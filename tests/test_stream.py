@@ -113,7 +113,7 @@ def test_without_compensation_the_post_is_off_by_the_turn_since_the_camera_stamp
 def test_without_odometry_the_stream_fuses_as_if_standing_and_says_so_once(caplog):
     stream: FusionStream[str] = FusionStream(config())
     stream.add_camera_info(CAMERA)
-    with caplog.at_level(logging.WARNING, logger='scanfuse.stream'):
+    with caplog.at_level(logging.DEBUG, logger='scanfuse.stream'):
         for index in range(3):
             stamp = T_SCAN + index * NS // 10
             stream.add_depth(stamp - 20_000_000, depth_seen_at(T_SCAN), stamp)

@@ -488,7 +488,7 @@ class FusionStream(Generic[T]):
         if not self.config.motion_compensation:
             return IDENTITY_MOTION, Compensation.OFF
         if not len(self.odometry):
-            self._warn_once(
+            self._note_once(
                 'no odometry',
                 f'no odometry (on {self.config.odom_topic} or TF {self.config.odom_frame} -> '
                 f'{self.config.base_frame}): fusing without motion compensation',
@@ -545,6 +545,13 @@ class FusionStream(Generic[T]):
         return deskewed, True
 
     # ------------------------------------------------------------ logging
+
+    def _note_once(self, key: str, message: str) -> None:
+        """Said once, at DEBUG: a normal way to run (a robot without odometry), not a fault;
+        reports and /diagnostics count it."""
+        if key not in self._warned:
+            self._warned.add(key)
+            logger.debug(message)
 
     def _warn_once(self, key: str, message: str) -> None:
         if key not in self._warned:

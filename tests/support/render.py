@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scanfuse.camera import CameraModel
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+
+if TYPE_CHECKING:
+    from scanfuse.camera import CameraModel
 
 
 @dataclass(frozen=True)
