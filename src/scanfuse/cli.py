@@ -7,6 +7,7 @@ else keeps its traceback.
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -170,6 +171,12 @@ def node(
     code = node_main([*args, *ctx.args])
     if code:
         raise typer.Exit(code)
+
+
+def node_entry() -> int:
+    """`ros2 run scanfuse scanfuse_node ARGS` (the colcon package's executable): `scanfuse node ARGS`."""
+    sys.argv[0] = 'scanfuse'  # the usage line names the command it runs: `scanfuse node`
+    return main(['node', *sys.argv[1:]])
 
 
 def report_error(message: str) -> None:
