@@ -28,6 +28,21 @@ LAUNCH_FILE = ROOT / 'launch' / 'scanfuse.launch.py'
 # Import names that are ROS packages (rosdep/ament names), not Python libraries.
 ROS_PACKAGE = re.compile(r'^(rclpy|launch|launch_ros|ament_index_python|\w+_msgs|\w+_interfaces)$')
 
+# What `ros2 run` and `ros2 launch` ask the ament index, and where scanfuse imports from.
+LOOKUP = """
+import json
+import scanfuse
+from ament_index_python.packages import (
+    get_package_prefix, get_package_share_directory, get_packages_with_prefixes
+)
+print(json.dumps({
+    'prefix': get_package_prefix('scanfuse'),
+    'share': get_package_share_directory('scanfuse'),
+    'packages': get_packages_with_prefixes(),
+    'module': scanfuse.__file__,
+}))
+"""
+
 needs_colcon = pytest.mark.skipif(
     importlib.util.find_spec('colcon_core') is None,
     reason="colcon is not installed: pip install -e '.[test]' (make test installs it)",
@@ -35,7 +50,7 @@ needs_colcon = pytest.mark.skipif(
 
 
 def manifest() -> ET.Element:
-    return ET.parse(ROOT / 'package.xml').getroot()
+    return ET.parse(ROOT / 'package.xml').getroot()  # noqa: S314 - the repository's own file
 
 
 def imported_ros_packages(paths: list[Path]) -> set[str]:
@@ -127,16 +142,7 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
         'PYTHONPATH': str(site_packages),
     }
     lookup = subprocess.run(
-        [
-            sys.executable,
-            '-c',
-            'import json, scanfuse\n'
-            'from ament_index_python.packages import '
-            'get_package_prefix, get_package_share_directory, get_packages_with_prefixes\n'
-            "print(json.dumps({'prefix': get_package_prefix('scanfuse'),\n"
-            "    'share': get_package_share_directory('scanfuse'),\n"
-            "    'packages': get_packages_with_prefixes(), 'module': scanfuse.__file__}))",
-        ],
+        [sys.executable, '-c', LOOKUP],
         env=env,
         capture_output=True,
         text=True,
