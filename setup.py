@@ -37,6 +37,7 @@ class ColconDistribution(Distribution):
     def parse_config_files(self, *args: Any, **kwargs: Any) -> None:
         super().parse_config_files(*args, **kwargs)
         # pyproject.toml's [project.scripts] replaces any entry_points given to setup().
+        self.entry_points = dict(self.entry_points or {})
         scripts = self.entry_points.setdefault('console_scripts', [])
         if NODE_EXECUTABLE not in scripts:
             scripts.append(NODE_EXECUTABLE)

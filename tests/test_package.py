@@ -191,3 +191,19 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     assert ran.returncode == 0, ran.stderr
     assert 'Usage: scanfuse node' in ran.stdout
     assert '--params-file' in ran.stdout
+    if importlib.util.find_spec('rclpy') is None:
+        return
+    # The arguments launch_ros's Node(name=..., parameters=[file], remappings=...) passes:
+    # the parameter file reaches scanfuse (a missing one stops it before DDS starts).
+    missing = tmp_path / 'missing.yaml'
+    ros_args = ['-r', '__node:=scanfuse', '--params-file', str(missing), '-r', '/scan:=/scan']
+    launched = subprocess.run(
+        [str(executable), '--ros-args', *ros_args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert launched.returncode == 1
+    assert f'cannot read parameter file {missing}' in launched.stderr
