@@ -5,6 +5,7 @@ COLCON is set (colcon-core sets it for exactly that), and only then does this ad
 ROS 2 package installs beside its Python code: the ament index marker, package.xml, the
 launch file and the parameter files under share/scanfuse, and the `scanfuse_node`
 executable (setup.cfg sends executables to lib/scanfuse, where `ros2 run` looks).
+`colcon build` and `colcon build --symlink-install` both work (tests/test_package.py).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from setuptools import setup
+from setuptools.config.pyprojecttoml import apply_configuration
 from setuptools.dist import Distribution
 
 PACKAGE = 'scanfuse'
@@ -36,6 +38,10 @@ class ColconDistribution(Distribution):
 
     def parse_config_files(self, *args: Any, **kwargs: Any) -> None:
         super().parse_config_files(*args, **kwargs)
+        if not Path('pyproject.toml').is_file():
+            # `colcon build --symlink-install` runs setup.py (a symlink) in the build folder,
+            # where colcon links the packages and data files but not pyproject.toml.
+            apply_configuration(self, Path(__file__).resolve().parent / 'pyproject.toml')
         # pyproject.toml's [project.scripts] replaces any entry_points given to setup().
         self.entry_points = dict(self.entry_points or {})
         scripts = self.entry_points.setdefault('console_scripts', [])

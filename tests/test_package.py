@@ -1,10 +1,10 @@
 """The repository as a ROS 2 package: package.xml, and what `colcon build` installs.
 
-The colcon test builds a fresh workspace whose src/ holds the repository (a symlink), then
-looks the package up the way `ros2 run` and `ros2 launch` do: through the ament index
-(ament_index_python, with AMENT_PREFIX_PATH naming the install). `ros2 launch` itself is
-not run: launch and launch_ros are not among the PyPI wheels, so the launch file is read
-with `ast` and what it names is checked against the install.
+The colcon test builds a fresh workspace whose src/ holds the repository (a symlink), with
+and without --symlink-install, sources install/setup.bash and looks the package up the way
+`ros2 run` and `ros2 launch` do: through the ament index (ament_index_python).
+`ros2 launch` itself is not run: launch and launch_ros are not among the PyPI wheels, so
+the launch file is read with `ast` and what it names is checked against the install.
 """
 
 from __future__ import annotations
@@ -112,8 +112,24 @@ def call_keywords(tree: ast.AST, function: str) -> dict[str, object]:
     }
 
 
+def sourced_environment(workspace: Path) -> dict[str, str]:
+    """The environment a shell has after `source install/setup.bash`."""
+    dump = 'import json, os; print(json.dumps(dict(os.environ)))'
+    done = subprocess.run(
+        ['bash', '-c', '. install/setup.bash && exec "$0" -c "$1"', sys.executable, dump],
+        cwd=workspace,
+        env=clean_environment(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    return json.loads(done.stdout.splitlines()[-1])
+
+
 @needs_colcon
-def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_path):
+@pytest.mark.parametrize('options', [[], ['--symlink-install']], ids=['install', 'symlink'])
+def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_path, options):
     workspace = tmp_path / 'ws'
     (workspace / 'src').mkdir(parents=True)
     (workspace / 'src' / 'scanfuse').symlink_to(ROOT, target_is_directory=True)
@@ -121,7 +137,7 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     already = {name for name in colcon_folders if (ROOT / name).exists()}
     colcon = 'import sys; from colcon_core.command import main; sys.exit(main(argv=sys.argv[1:]))'
     build = subprocess.run(
-        [sys.executable, '-c', colcon, '--log-base', str(workspace / 'log'), 'build'],
+        [sys.executable, '-c', colcon, '--log-base', str(workspace / 'log'), 'build', *options],
         cwd=workspace,
         env=clean_environment(),
         capture_output=True,
@@ -134,13 +150,7 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     assert {name for name in colcon_folders if (ROOT / name).exists()} == already
 
     install = workspace / 'install' / 'scanfuse'
-    (site_packages,) = install.glob('lib/python3*/site-packages')
-    # What `source install/setup.bash` sets for this package (its hooks in share/scanfuse).
-    env = {
-        **clean_environment(),
-        'AMENT_PREFIX_PATH': str(install),
-        'PYTHONPATH': str(site_packages),
-    }
+    env = sourced_environment(workspace)
     lookup = subprocess.run(
         [sys.executable, '-c', LOOKUP],
         env=env,
@@ -154,8 +164,9 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     assert Path(found['prefix']) == install
     share = Path(found['share'])
     assert share == install / 'share' / 'scanfuse'
-    # The installed package is the one that imports, not the source tree or a pip install.
-    assert Path(found['module']).is_relative_to(site_packages)
+    # The workspace's package is the one that imports, not this checkout or a pip install
+    # (with --symlink-install, a link in the build folder to the sources).
+    assert Path(found['module']).is_relative_to(workspace)
 
     # `ros2 launch scanfuse scanfuse.launch.py` runs <share>/launch/scanfuse.launch.py.
     launch = share / 'launch' / 'scanfuse.launch.py'
@@ -180,6 +191,7 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     executable = Path(found['prefix']) / 'lib' / 'scanfuse' / str(node['executable'])
     assert node['executable'] == 'scanfuse_node'
     assert os.access(executable, os.X_OK)
+    assert os.access(executable.with_name('scanfuse'), os.X_OK)  # ros2 run scanfuse scanfuse bag
     ran = subprocess.run(
         [str(executable), '--help'],
         env=env,
