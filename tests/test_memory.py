@@ -247,7 +247,12 @@ def test_the_store_is_bounded_by_its_grid_whatever_is_added():
         x, y = rng.uniform(-50, 50, 10_000), rng.uniform(-50, 50, 10_000)
         memory.add(x, y, stamp)
     assert len(memory) <= MemorySettings(radius=1.0, cell=0.05).side ** 2
-    memory.forget(0.0, 0.0, 50)
+    memory.scan(
+        Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()),
+        AngleGrid(-math.pi, 0.01, 628),
+        robot=(0.0, 0.0),
+        now_ns=50,
+    )
     x, y = memory.points()
     assert np.all(np.hypot(x, y) <= 1.0)
 
@@ -262,9 +267,12 @@ def test_projection_of_a_remembered_point_from_an_upside_down_lidar_is_mirrored(
     memory = ObstacleMemory()
     memory.add(np.array([0.0]), np.array([1.0]), 0)  # 1 m to the left of the base
     grid = AngleGrid(-math.pi, 2 * math.pi / 360, 360)
-    upright = memory.scan(Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()), grid)
+    here = {'robot': (0.0, 0.0), 'now_ns': 0}
+    upright = memory.scan(Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()), grid, **here)
     flipped = memory.scan(
-        Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform.from_rpy(math.pi, 0.0, 0.0)), grid
+        Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform.from_rpy(math.pi, 0.0, 0.0)),
+        grid,
+        **here,
     )
     left = int(grid.slot_of(np.array([math.pi / 2]))[0])
     right = int(grid.slot_of(np.array([-math.pi / 2]))[0])

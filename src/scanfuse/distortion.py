@@ -63,6 +63,11 @@ def _coefficients(model: str, coeffs: Sequence[float]) -> Array:
     return full
 
 
+def distortion_coefficients(model: str, coeffs: Sequence[float]) -> Array:
+    """(k1, k2, p1, p2, k3, k4, k5, k6) of a CameraInfo's model and D, for compiled loops."""
+    return _coefficients(model, coeffs)
+
+
 def distort_normalized(
     x: npt.ArrayLike, y: npt.ArrayLike, model: str, coeffs: Sequence[float]
 ) -> tuple[Array, Array]:

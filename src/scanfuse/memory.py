@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scanfuse.distortion import distortion_coefficients
 from scanfuse.errors import InputError
 from scanfuse.scan import TWO_PI
 
@@ -109,10 +110,15 @@ class Placement:
         return self.x + self.xx * x + self.yx * y, self.y + self.xy * x + self.yy * y
 
 
-def _project_loop(
+def _forget_and_project_loop(
+    keys: Any,
     xs: Any,
     ys: Any,
-    used: Any,
+    seen_ns: Any,
+    robot_x: float,
+    robot_y: float,
+    radius_squared: float,
+    oldest_ns: int,
     ox: float,
     oy: float,
     xx: float,
@@ -122,39 +128,65 @@ def _project_loop(
     angle_min: float,
     increment: float,
     count: int,
-    turn: float,
+    turn: int,
     out: Any,
 ) -> None:
-    """Per slot the nearest remembered point seen from a sensor at origin (ox, oy) with axes
-    (xx, xy) and (yx, yy) in odom; NaN where no point falls."""
-    out[:] = np.nan
-    for i in used:
-        dx = xs[i] - ox
-        dy = ys[i] - oy
+    """One pass over the store: forget points beyond the radius or older than `oldest_ns`,
+    and per slot keep the nearest of the others seen from a sensor at origin (ox, oy) with
+    axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath)."""
+    out[:] = np.inf
+    for i in range(keys.size):
+        if keys[i] < 0:
+            continue
+        px = xs[i]
+        py = ys[i]
+        rx = px - robot_x
+        ry = py - robot_y
+        if rx * rx + ry * ry > radius_squared or seen_ns[i] < oldest_ns:
+            keys[i] = -1
+            continue
+        dx = px - ox
+        dy = py - oy
         x = xx * dx + xy * dy  # the axes are orthonormal: projections give coordinates
         y = yx * dx + yy * dy
         r = math.sqrt(x * x + y * y)
         if r == 0.0:
             continue
+        # atan2 by octant and a minimax polynomial (max error 2e-4 rad, 0.012 degrees: a
+        # point within that of a slot boundary may land next door): four times faster.
+        ax, ay = abs(x), abs(y)
+        a = min(ax, ay) / max(ax, ay)
+        a2 = a * a
+        bearing = ((-0.0464964749 * a2 + 0.15931422) * a2 - 0.327622764) * a2 * a + a
+        if ay > ax:
+            bearing = 1.5707963267948966 - bearing
+        if x < 0.0:
+            bearing = math.pi - bearing
+        if y < 0.0:
+            bearing = -bearing
         # Slot k covers angle_min + (k +- 1/2) increment, counted round the whole turn.
-        position = ((math.atan2(y, x) - angle_min) / increment + 0.5) % turn
-        slot = math.floor(position)
+        slot = math.floor((bearing - angle_min) / increment + 0.5)
+        if slot < 0:
+            slot += turn
+        elif slot >= turn:
+            slot -= turn
         if slot < 0 or slot >= count:
             continue
-        if not out[slot] <= r:  # NaN or farther
-            out[slot] = r
+        out[slot] = min(out[slot], r)
 
 
-def _load_project() -> Callable[..., None]:
+def _load_kernel() -> Callable[..., None]:
     try:
         import numba  # noqa: PLC0415
     except ImportError:  # pragma: no cover - numba is a dependency
-        return _project_loop
-    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_project_loop)
+        return _forget_and_project_loop
+    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True, fastmath=True)(
+        _forget_and_project_loop
+    )
     return kernel
 
 
-_PROJECT = _load_project()
+_KERNEL = _load_kernel()
 
 
 class ObstacleMemory:
@@ -200,25 +232,22 @@ class ObstacleMemory:
         self._seen_ns[index] = stamp_ns
         self._key[index] = key
 
-    def forget(self, robot_x: float, robot_y: float, now_ns: int) -> None:
-        """Drop points beyond `radius` from the robot or older than `max_age`."""
-        used = np.flatnonzero(self._key >= 0)
-        if not used.size:
-            return
-        far = np.hypot(self._x[used] - robot_x, self._y[used] - robot_y) > self.settings.radius
-        old = now_ns - self._seen_ns[used] > round(self.settings.max_age * 1e9)
-        self._key[used[far | old]] = -1
-
-    # ------------------------------------------------------------ the scan
-
-    def scan(self, sensor: Placement, grid: AngleGrid) -> F64:
-        """Ranges per slot of `grid` from the sensor placed at `sensor`; NaN: none."""
+    def scan(
+        self, sensor: Placement, grid: AngleGrid, *, robot: tuple[float, float], now_ns: int
+    ) -> F64:
+        """Forget points beyond `radius` from `robot` or older than `max_age` at `now_ns`;
+        the ranges of the others per slot of `grid`, seen from `sensor` (NaN: none)."""
         out = np.empty(grid.count, dtype=np.float64)
-        used = np.flatnonzero(self._key >= 0)
-        _PROJECT(
+        turn = round(TWO_PI / abs(grid.angle_increment))
+        _KERNEL(
+            self._key,
             self._x,
             self._y,
-            used,
+            self._seen_ns,
+            robot[0],
+            robot[1],
+            self.settings.radius**2,
+            now_ns - round(self.settings.max_age * 1e9),
             sensor.x,
             sensor.y,
             sensor.xx,
@@ -228,9 +257,10 @@ class ObstacleMemory:
             grid.angle_min,
             grid.angle_increment,
             grid.count,
-            TWO_PI / abs(grid.angle_increment),
+            turn,
             out,
         )
+        out[np.isinf(out)] = np.nan
         return out
 
     # ------------------------------------------------------------ clearing by the camera
@@ -250,53 +280,110 @@ class ObstacleMemory:
         `odom_to_optical` is the camera's optical frame in the odometry frame at the
         image's stamp; heights are above the odometry frame's z = 0 (the floor).
         """
-        used = np.flatnonzero(self._key >= 0)
-        if not used.size:
-            return 0
         low, high = slab
-        heights = [low + (high - low) * f for f in CLEAR_HEIGHTS]
-        rotation = odom_to_optical.rotation_matrix
-        origin = np.asarray(odom_to_optical.translation)
-        x, y = self._x[used], self._y[used]
-        free_low = np.zeros(used.size, dtype=bool)
-        occupied = np.zeros(used.size, dtype=bool)
-        metres = depth.dtype != np.uint16
-        for rank, height in enumerate(heights):
-            world = np.stack([x - origin[0], y - origin[1], np.full_like(x, height - origin[2])])
-            optical = rotation.T @ world  # (3, N)
-            z = optical[2]
-            with np.errstate(divide='ignore', invalid='ignore'):
-                u_n, v_n = optical[0] / z, optical[1] / z
-            if camera.has_distortion:
-                from scanfuse.distortion import distort_normalized  # noqa: PLC0415
+        heights = np.array([low + (high - low) * f for f in CLEAR_HEIGHTS])
+        if camera.has_distortion:
+            coefficients = distortion_coefficients(camera.distortion_model, camera.distortion)
+        else:
+            coefficients = np.zeros(8)
+        image = np.ascontiguousarray(depth)
+        metres = image.dtype != np.uint16
+        pixels = image.astype(np.float32) if metres else image
+        cleared = _CLEAR(
+            self._key,
+            self._x,
+            self._y,
+            heights,
+            odom_to_optical.rotation_matrix,
+            np.asarray(odom_to_optical.translation),
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            coefficients,
+            pixels,
+            1.0 if metres else 1e-3,
+            range_min,
+            range_max,
+            np.asarray(CLEAR_MARGIN),
+        )
+        self.cleared += cleared
+        return int(cleared)
 
-                u_n, v_n = distort_normalized(u_n, v_n, camera.distortion_model, camera.distortion)
-            with np.errstate(invalid='ignore'):
-                u = np.rint(camera.fx * u_n + camera.cx)
-                v = np.rint(camera.fy * v_n + camera.cy)
-                inside = (
-                    (z >= range_min)
-                    & (z <= range_max)
-                    & (u >= 0)
-                    & (u < camera.width)
-                    & (v >= 0)
-                    & (v < camera.height)
-                )
-            pixels = depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
-            measured = pixels.astype(np.float64) * (1.0 if metres else 1e-3)
-            valid = np.isfinite(measured) & (measured > 0.0)
-            expected = z[inside]
-            margin = CLEAR_MARGIN[0] + CLEAR_MARGIN[1] * expected + CLEAR_MARGIN[2] * expected**2
-            beyond = valid & (measured > expected + margin)
-            near = valid & (np.abs(measured - expected) <= margin)
-            where = np.flatnonzero(inside)
-            if rank == 0:
-                free_low[where[beyond]] = True
-            occupied[where[near]] = True
-        gone = used[free_low & ~occupied]
-        self._key[gone] = -1
-        self.cleared += int(gone.size)
-        return int(gone.size)
+
+def _clear_loop(
+    keys: Any,
+    xs: Any,
+    ys: Any,
+    heights: Any,
+    rotation: Any,
+    origin: Any,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    d: Any,
+    depth: Any,
+    scale: float,
+    range_min: float,
+    range_max: float,
+    margin: Any,
+) -> int:
+    """`ObstacleMemory.clear_seen` one point at a time; the count of points forgotten."""
+    rows, columns = depth.shape
+    cleared = 0
+    for i in range(keys.size):
+        if keys[i] < 0:
+            continue
+        free_low = False
+        occupied = False
+        for rank in range(heights.size):
+            wx = xs[i] - origin[0]
+            wy = ys[i] - origin[1]
+            wz = heights[rank] - origin[2]
+            # optical = R^T (world - origin)
+            ox = rotation[0, 0] * wx + rotation[1, 0] * wy + rotation[2, 0] * wz
+            oy = rotation[0, 1] * wx + rotation[1, 1] * wy + rotation[2, 1] * wz
+            z = rotation[0, 2] * wx + rotation[1, 2] * wy + rotation[2, 2] * wz
+            if not range_min <= z <= range_max:
+                continue
+            xn = ox / z
+            yn = oy / z
+            r2 = xn * xn + yn * yn
+            radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (
+                1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
+            )
+            xd = xn * radial + 2.0 * d[2] * xn * yn + d[3] * (r2 + 2.0 * xn * xn)
+            yd = yn * radial + d[2] * (r2 + 2.0 * yn * yn) + 2.0 * d[3] * xn * yn
+            u = round(fx * xd + cx)
+            v = round(fy * yd + cy)
+            if not (0 <= u < columns and 0 <= v < rows):
+                continue
+            measured = depth[v, u] * scale
+            if not measured > 0.0:  # no return (0 or NaN): no information
+                continue
+            allowed = margin[0] + margin[1] * z + margin[2] * z * z
+            if measured > z + allowed:
+                if rank == 0:
+                    free_low = True
+            elif measured >= z - allowed:
+                occupied = True
+        if free_low and not occupied:
+            keys[i] = -1
+            cleared += 1
+    return cleared
+
+
+def _load_clear() -> Callable[..., int]:
+    try:
+        import numba  # noqa: PLC0415
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return _clear_loop
+    kernel: Callable[..., int] = numba.njit(cache=True, nogil=True)(_clear_loop)
+    return kernel
+
+
+_CLEAR = _load_clear()
 
 
 def points_of_scan(scan: Scan, sensor: Placement) -> tuple[F64, F64]:

@@ -479,9 +479,11 @@ class FusionStream(Generic[T]):
         placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
         if output.depth_scan is not None:
             memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
-        memory.forget(base.pose.x, base.pose.y, scan.stamp_ns)
+        ranges = memory.scan(
+            placement, scan.grid, robot=(base.pose.x, base.pose.y), now_ns=scan.stamp_ns
+        )
         remembered = scan.with_ranges(
-            memory.scan(placement, scan.grid).astype(np.float32),
+            ranges.astype(np.float32),
             range_min=scan.range_min,
             range_max=scan.range_max,
         )
