@@ -13,9 +13,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from tests.support.synthetic import Scene, write_scene_bag
+
 from common import Row
 from scanfuse.ros.bag import fuse_bag
-from tests.support.synthetic import Scene, write_scene_bag
 
 DURATION = 60.0
 REPEAT = 3

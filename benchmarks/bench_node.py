@@ -17,10 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tests.support.synthetic import Scene
 
 from common import Row
 from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_from_cdr, scan_to_cdr, typestore
-from tests.support.synthetic import Scene
 from scanfuse.scan import Scan
 
 SECONDS = 12.0

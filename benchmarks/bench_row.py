@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from tests.support.reference import row_scan_loop
 
 from common import Row, median_seconds
-from tests.support.reference import row_scan_loop
 from scanfuse.camera import CameraModel
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.row import row_scan
