@@ -15,6 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from scanfuse.errors import ConfigError
+from scanfuse.sources import SourceSet, sources_to_params, split_sources
 
 NODE_NAME = 'scanfuse'
 
@@ -104,6 +105,10 @@ class FusionConfig(BaseModel):
     lidar_x: float = Field(0.0, description='LiDAR position in the base frame, metres')
     lidar_y: float = Field(0.0, description='LiDAR position in the base frame, metres')
     lidar_height: float = Field(0.30, description='LiDAR height above the floor, metres')
+    lidar_roll: float = Field(
+        0.0, description='LiDAR roll in the base frame, radians (pi: mounted upside down)'
+    )
+    lidar_pitch: float = Field(0.0, description='LiDAR pitch in the base frame, radians')
     lidar_yaw: float = Field(0.0, description='LiDAR yaw in the base frame, radians')
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
@@ -181,6 +186,11 @@ class FusionConfig(BaseModel):
         description='LaserScan of the remembered obstacles alone (viewing); empty: not published',
     )
 
+    sources: SourceSet = Field(
+        default_factory=SourceSet,
+        description='named LiDARs, cameras and clouds (see scanfuse.sources); empty: one of each',
+    )
+
     @model_validator(mode='after')
     def _check_limits(self) -> FusionConfig:
         if self.range_min >= self.range_max:
@@ -202,7 +212,15 @@ class FusionConfig(BaseModel):
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> FusionConfig:
-        """Validate plain values; errors name every bad parameter."""
+        """Validate plain values; errors name every bad parameter.
+
+        Named sources (`lidars: [...]` with a section per name) are gathered into `sources`;
+        the first LiDAR and the first camera also fill the one-source parameters (topic and
+        mounting), which then describe the primary pair.
+        """
+        values, named = split_sources(values)
+        if named is not None:
+            values = {**values, **_primary_from_sources(named), 'sources': named}
         try:
             return cls.model_validate(values)
         except ValidationError as err:
@@ -220,12 +238,37 @@ class FusionConfig(BaseModel):
 
     def to_ros_params(self, node_name: str = NODE_NAME) -> dict[str, Any]:
         """The parameter-file form of this configuration (loadable by ROS 2 and by us)."""
-        values = self.model_dump(mode='json', exclude_none=True)
+        values = self.model_dump(mode='json', exclude_none=True, exclude={'sources'})
+        values.update(sources_to_params(self.sources))
         return {node_name: {'ros__parameters': values}}
 
     def with_changes(self, **changes: Any) -> FusionConfig:
         """A validated copy with some parameters changed."""
-        return self.from_dict({**self.model_dump(), **changes})
+        current = self.model_dump(exclude={'sources'})
+        current.update(sources_to_params(self.sources))
+        return self.from_dict({**current, **changes})
+
+
+def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
+    """The one-source parameters the first named LiDAR and camera stand for."""
+    primary: dict[str, Any] = {}
+    lidars, cameras = named.get('lidars') or [], named.get('cameras') or []
+    if lidars and isinstance(lidars[0], dict):
+        first = lidars[0]
+        primary['scan_topic'] = first.get('topic')
+        for axis, name in (('x', 'lidar_x'), ('y', 'lidar_y'), ('z', 'lidar_height')):
+            primary[name] = first.get(axis, 0.0)
+        for angle in ('roll', 'pitch', 'yaw'):
+            primary[f'lidar_{angle}'] = first.get(angle, 0.0)
+    if cameras and isinstance(cameras[0], dict):
+        first = cameras[0]
+        primary['depth_topic'] = first.get('depth_topic')
+        primary['camera_info_topic'] = first.get('camera_info_topic')
+        for axis, name in (('x', 'camera_x'), ('y', 'camera_y'), ('z', 'camera_height')):
+            primary[name] = first.get(axis, 0.0)
+        for angle in ('roll', 'pitch', 'yaw'):
+            primary[f'camera_{angle}'] = first.get(angle, 0.0)
+    return {key: value for key, value in primary.items() if value is not None}
 
 
 def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:

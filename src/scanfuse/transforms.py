@@ -245,17 +245,21 @@ class Extrinsics:
         lidar_x: float = 0.0,
         lidar_y: float = 0.0,
         lidar_height: float = 0.0,
+        lidar_roll: float = 0.0,
+        lidar_pitch: float = 0.0,
         lidar_yaw: float = 0.0,
     ) -> Extrinsics:
         """From positions in the base frame and the camera body's roll, pitch, yaw.
 
         `camera_pitch` is positive when the camera looks down, `camera_yaw`
-        positive when it looks left (REP-103); the LiDAR is level.
+        positive when it looks left (REP-103); a LiDAR with roll pi is mounted upside down.
         """
         camera_body = Transform.from_rpy(
             camera_roll, camera_pitch, camera_yaw, (camera_x, camera_y, camera_height)
         )
-        laser = Transform.from_rpy(0.0, 0.0, lidar_yaw, (lidar_x, lidar_y, lidar_height))
+        laser = Transform.from_rpy(
+            lidar_roll, lidar_pitch, lidar_yaw, (lidar_x, lidar_y, lidar_height)
+        )
         return cls(base_to_laser=laser, base_to_camera_optical=camera_body @ BODY_TO_OPTICAL)
 
     @classmethod
@@ -271,5 +275,7 @@ class Extrinsics:
             lidar_x=config.lidar_x,
             lidar_y=config.lidar_y,
             lidar_height=config.lidar_height,
+            lidar_roll=config.lidar_roll,
+            lidar_pitch=config.lidar_pitch,
             lidar_yaw=config.lidar_yaw,
         )

@@ -15,10 +15,13 @@ from typing import Any
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
+from scanfuse.sources import KINDS
 
 # scan_row None ("the principal-point row") as a ROS integer parameter.
 SCAN_ROW_CENTRE = -1
 
+# Declared by the node from the source lists, not one parameter each (see scanfuse.sources).
+NESTED = frozenset({'sources'})
 # Changing these while running would need new subscriptions or publishers.
 START_UP_ONLY = frozenset(
     {
@@ -148,6 +151,8 @@ def fusion_param_specs(defaults: FusionConfig) -> list[ParamSpec]:
     """One spec per `FusionConfig` field, its default taken from `defaults`."""
     specs = []
     for name, info in FusionConfig.model_fields.items():
+        if name in NESTED:
+            continue
         value = to_ros_value(name, getattr(defaults, name))
         annotation = info.annotation
         choices = (
@@ -188,7 +193,11 @@ def all_param_specs(
 
 def config_from_ros(values: dict[str, Any]) -> FusionConfig:
     """A validated `FusionConfig` from ROS parameter values (ConfigError names what is wrong)."""
-    fusion = {name: values[name] for name in FusionConfig.model_fields if name in values}
+    fusion = {
+        name: value
+        for name, value in values.items()
+        if name in FusionConfig.model_fields or name in KINDS or '.' in name
+    }
     if fusion.get('scan_row') == SCAN_ROW_CENTRE:
         fusion['scan_row'] = None
     return FusionConfig.from_dict(fusion)
