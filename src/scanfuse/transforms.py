@@ -37,6 +37,12 @@ Quaternion = tuple[float, float, float, float]
 Vector3 = tuple[float, float, float]
 
 _NORM_TOLERANCE = 1e-6
+# No frame of a robot's TF tree is this far from its parent (UTM northings stay below 1e7 m),
+# and the float32 arithmetic of the conversions stays far from overflow below it.
+MAX_TRANSLATION = 1.0e9
+# A sensor further than this from the base frame is a typo or a corrupt transform, not a
+# mounting (the bound of the `camera_*` and `lidar_*` parameters too).
+MAX_MOUNTING_OFFSET = 100.0
 
 
 def _quaternion_to_matrix(q: Quaternion) -> Matrix:
@@ -92,6 +98,12 @@ class Transform:
         if not all(math.isfinite(value) for value in values):
             msg = f'transform values must be finite, got rotation {self.rotation}, '
             msg += f'translation {self.translation}'
+            raise TransformError(msg)
+        if max(abs(value) for value in self.translation) > MAX_TRANSLATION:
+            msg = (
+                f'transform translation {self.translation} is more than {MAX_TRANSLATION:g} m '
+                'from its parent frame; the transform is corrupt'
+            )
             raise TransformError(msg)
         norm = math.sqrt(sum(value * value for value in self.rotation))
         if norm < _NORM_TOLERANCE:
@@ -226,6 +238,18 @@ class Extrinsics:
     """Pose of the LiDAR in the base frame (TF parent base_link, child laser)."""
     base_to_camera_optical: Transform = BODY_TO_OPTICAL
     """Pose of the camera's optical frame in the base frame."""
+
+    def __post_init__(self) -> None:
+        for name in ('base_to_laser', 'base_to_camera_optical'):
+            translation = getattr(self, name).translation
+            if max(abs(value) for value in translation) > MAX_MOUNTING_OFFSET:
+                sensor = 'LiDAR' if name == 'base_to_laser' else 'depth camera'
+                msg = (
+                    f'the {sensor} is mounted at {translation} m in the base frame, more than '
+                    f'{MAX_MOUNTING_OFFSET:g} m from it along an axis; check the mounting '
+                    'parameters or the transforms on /tf_static'
+                )
+                raise TransformError(msg)
 
     @property
     def laser_to_camera_optical(self) -> Transform:
