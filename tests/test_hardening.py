@@ -124,6 +124,16 @@ def test_transform_beyond_any_tf_tree_is_refused():
     assert Transform(translation=(0.0, 9.9e6, 0.0)).translation[1] == 9.9e6
 
 
+def test_a_quaternion_whose_squares_overflow_is_still_normalised():
+    # (1, 0, 0, 1) scaled by 1e300: 90 degrees about x. Before, its norm overflowed to Inf
+    # and the rotation became (0, 0, 0, 0), a zero-length quaternion deep in the pipeline.
+    half = math.sqrt(0.5)
+    rotation = Transform((1e300, 0.0, 0.0, 1e300)).rotation
+    assert rotation == pytest.approx((half, 0.0, 0.0, half), abs=1e-15)
+    with pytest.raises(TransformError, match='has zero length'):
+        Transform((1e-170, 0.0, 0.0, 1e-170))
+
+
 @pytest.mark.parametrize('laser', [True, False])
 def test_extrinsics_more_than_100_m_from_the_base_are_refused(laser):
     far = Transform(translation=(0.0, 0.0, 150.0))

@@ -121,8 +121,8 @@ class FusionPipeline:
             else None
         )
         self._plans: GridCache[None, Plan] = GridCache(PLAN_CACHE_SIZE)
-        self._projectors: GridCache[tuple[CameraModel, Extrinsics], ObstacleProjector] = (
-            GridCache(PROJECTOR_CACHE_SIZE)
+        self._projectors: GridCache[tuple[CameraModel, Extrinsics], ObstacleProjector] = GridCache(
+            PROJECTOR_CACHE_SIZE
         )
 
     @property

@@ -105,13 +105,17 @@ class Transform:
                 'from its parent frame; the transform is corrupt'
             )
             raise TransformError(msg)
-        norm = math.sqrt(sum(value * value for value in self.rotation))
-        if norm < _NORM_TOLERANCE:
+        # Scaled by the largest value first: squaring 1e300 would overflow the norm to Inf
+        # (and the quaternion to zero), squaring 1e-170 underflow it.
+        largest = max(abs(float(value)) for value in self.rotation)
+        scaled = [float(value) / largest for value in self.rotation] if largest else [0.0] * 4
+        unit_norm = math.sqrt(sum(value * value for value in scaled))
+        if largest * unit_norm < _NORM_TOLERANCE:
             msg = f'rotation quaternion {self.rotation} has zero length; use (0, 0, 0, 1) for none'
             raise TransformError(msg)
         # One canonical sign (w >= 0): q and -q are the same rotation and must hash equal.
         sign = -1.0 if self.rotation[3] < 0.0 else 1.0
-        rotation = tuple(sign * float(v) / norm for v in self.rotation)
+        rotation = tuple(sign * value / unit_norm for value in scaled)
         object.__setattr__(self, 'rotation', rotation)
         object.__setattr__(self, 'translation', tuple(float(v) for v in self.translation))
 
