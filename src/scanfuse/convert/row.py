@@ -254,7 +254,7 @@ def slot_grid(column_angles: Float64Array) -> tuple[float, float, int]:
         )
         raise InputError(msg)
     count = math.floor((high - low) / spacing) + 1
-    return low, (high - low) / (count - 1) if count > 1 else spacing, count
+    return low, (high - low) / (count - 1), count
 
 
 def slot_of(angles: Float64Array, angle_min: float, increment: float, count: int) -> IntArray:
