@@ -1,7 +1,7 @@
 """Offline fusion of a recorded bag: a 60 s recording through `fuse_bag`.
 
 10 Hz LiDAR scans of 1080 readings, 30 Hz 848x480 16UC1 depth with CameraInfo and
-/tf_static (the synthetic scene of scanfuse.ros.synthetic), written as an MCAP bag
+/tf_static (the synthetic scene of tests.support.synthetic), written as an MCAP bag
 into a temporary folder and fused into a new MCAP bag.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from common import Row
 from scanfuse.ros.bag import fuse_bag
-from scanfuse.ros.synthetic import Scene, write_scene_bag
+from tests.support.synthetic import Scene, write_scene_bag
 
 DURATION = 60.0
 REPEAT = 3

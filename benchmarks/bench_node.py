@@ -20,7 +20,7 @@ import numpy as np
 
 from common import Row
 from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_from_cdr, scan_to_cdr, typestore
-from scanfuse.ros.synthetic import Scene
+from tests.support.synthetic import Scene
 from scanfuse.scan import Scan
 
 SECONDS = 12.0

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from common import Row, median_seconds
-from reference import row_scan_loop
+from tests.support.reference import row_scan_loop
 from scanfuse.camera import CameraModel
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.row import row_scan

@@ -1,6 +1,6 @@
 """`fuse_bag` and `scanfuse bag` on real bags written with rosbags into tmp_path.
 
-The scene (scanfuse.ros.synthetic): a wall at x = 2 m seen by the LiDAR (0.3 m up),
+The scene (tests.support.synthetic): a wall at x = 2 m seen by the LiDAR (0.3 m up),
 a 0.2 m high box whose front face is at x = 1.2 m, |y| <= 0.15 m, below the LiDAR's
 plane, and a depth camera 0.45 m up pitched 20 degrees down, all published on
 /tf_static. 2 s of 10 Hz scans and 30 Hz depth with no depth between 0.5 s and 0.9 s.
@@ -8,10 +8,15 @@ plane, and a depth camera 0.45 m up pitched 20 degrees down, all published on
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import logging
 import math
+import os
+import re
+import shutil
 from pathlib import Path  # noqa: TC003 - used at run time by pytest fixtures
+from time import time as wall_clock
 
 import numpy as np
 import pytest
@@ -21,11 +26,12 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from scanfuse import BagError, FusionConfig, MessageError, TransformError
+from scanfuse import BagError, FusionConfig, TransformError
 from scanfuse.cli import main
-from scanfuse.ros.bag import Storage, fuse_bag
-from scanfuse.ros.messages import camera_to_cdr
-from scanfuse.ros.synthetic import Scene, scene_messages, write_bag, write_scene_bag
+from scanfuse.frames import StampedTransform
+from scanfuse.ros.bag import Storage, cdr_problem, fuse_bag, header_stamp_ns
+from scanfuse.ros.messages import IMAGE, LASER_SCAN, TF_MESSAGE, camera_to_cdr, tf_message_to_cdr
+from tests.support.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 GAP = (0.5, 0.9)
 # Scans at 0.0, 0.1, ..., 1.9 s; frames at 1/90 s + k/30 s, none in [0.5, 0.9).
@@ -198,10 +204,32 @@ def test_extrinsics_fall_back_to_parameters_with_a_warning(tmp_path, caplog):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_tf=False))
     with caplog.at_level(logging.WARNING, logger='scanfuse.ros.bag'):
         report = fuse_bag(source, tmp_path / 'out')
-    assert report.extrinsics_source == 'parameters'
-    assert "extrinsics from the parameters, not TF: frame 'base_link' is not in the TF tree" in (
-        caplog.text
-    )
+    assert report.extrinsics_source == 'parameters (TF has neither sensor frame)'
+    assert 'extrinsics from the parameters (TF has neither sensor frame)' in caplog.text
+
+
+def test_tf_that_does_not_reach_base_frame_is_refused_naming_the_roots(tmp_path):
+    # As a real PSENscan recording: laser_1_mount_link -> laser_1 -> laser_1_scan, no base_link.
+    scene = Scene(duration=0.3, publish_tf=False)
+    tree = [
+        StampedTransform('laser_1_mount_link', 'laser_1', (0.0, 0.0, 0.1), (0.0, 0.0, 0.0, 1.0)),
+        StampedTransform('laser_1', 'laser', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+    ]
+    messages = [
+        ('/tf_static', TF_MESSAGE, scene.start_ns, tf_message_to_cdr(tree)),
+        *scene_messages(scene),
+    ]
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(
+        TransformError,
+        match=r"TF does not connect base_frame 'base_link' .*TF roots: laser_1_mount_link; "
+        r"base_frame 'laser_1_mount_link'\?.*use_tf: false",
+    ):
+        fuse_bag(source, tmp_path / 'out')
+    assert not (tmp_path / 'out').exists()
+    # The user's choice of the mounting parameters is respected.
+    report = fuse_bag(source, tmp_path / 'out', config=FusionConfig(use_tf=False))
+    assert report.extrinsics_source == 'parameters (use_tf is false)'
 
 
 def test_require_tf_without_tf_is_an_error(tmp_path):
@@ -214,19 +242,197 @@ def test_require_tf_without_tf_is_an_error(tmp_path):
 def test_use_tf_false_takes_the_parameters(tmp_path):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
     report = fuse_bag(source, tmp_path / 'out', config=FusionConfig(use_tf=False))
-    assert report.extrinsics_source == 'parameters'
+    assert report.extrinsics_source == 'parameters (use_tf is false)'
 
 
 def test_output_exists_is_an_error_unless_overwrite(tmp_path):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
-    (tmp_path / 'out').mkdir()
-    (tmp_path / 'out' / 'keep.txt').write_text('mine')
+    fuse_bag(source, tmp_path / 'out', storage='sqlite3')
     with pytest.raises(BagError, match=r'out exists already; choose another path or pass'):
         fuse_bag(source, tmp_path / 'out')
-    assert (tmp_path / 'out' / 'keep.txt').read_text() == 'mine'
+    assert (tmp_path / 'out' / 'out.db3').exists()
+    # A bag we wrote is replaced.
     fuse_bag(source, tmp_path / 'out', overwrite=True)
-    assert not (tmp_path / 'out' / 'keep.txt').exists()
-    assert (tmp_path / 'out' / 'metadata.yaml').exists()
+    assert (tmp_path / 'out' / 'out.mcap').exists()
+    assert not (tmp_path / 'out' / 'out.db3').exists()
+    # So is a single-file bag (scanfuse simulate writes those).
+    single = tmp_path / 'single.mcap'
+    shutil.copyfile(source / 'in.mcap', single)
+    fuse_bag(source, single, overwrite=True)
+    assert (single / 'single.mcap.mcap').exists()
+
+
+def _not_a_bag(path: Path, kind: str) -> None:
+    """Things --overwrite must leave alone, each with what the user keeps in it."""
+    if kind == 'folder':
+        path.mkdir()
+        (path / 'keep.txt').write_text('mine')
+    elif kind == 'bag_and_more':
+        write_scene_bag(path, Scene(duration=0.2))
+        (path / 'keep.txt').write_text('mine')
+    elif kind == 'bag_with_subfolder':
+        write_scene_bag(path, Scene(duration=0.2))
+        (path / 'notes').mkdir()
+    elif kind == 'metadata_only':
+        path.mkdir()
+        (path / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    elif kind == 'fake_mcap':
+        path.mkdir()
+        (path / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+        (path / 'out.mcap').write_text('not an mcap file')
+    elif kind == 'other_yaml':
+        write_scene_bag(path, Scene(duration=0.2))
+        (path / 'metadata.yaml').write_text('my: settings\n')
+    elif kind == 'text_file':
+        path.write_text('mine')
+    elif kind == 'symlink':
+        (path.parent / 'real').mkdir()
+        path.symlink_to(path.parent / 'real')
+
+
+@pytest.mark.parametrize(
+    ('kind', 'reason'),
+    [
+        ('folder', 'it has no metadata.yaml'),
+        ('bag_and_more', 'keep.txt is not a .mcap or .db3 file'),
+        ('bag_with_subfolder', 'notes is not a .mcap or .db3 file'),
+        ('metadata_only', 'it holds no .mcap or .db3 file'),
+        ('fake_mcap', r'out.mcap does not start like a \.mcap file'),
+        ('other_yaml', 'its metadata.yaml is not rosbag2 metadata'),
+        ('text_file', r'out is not a \.mcap or \.db3 file'),
+        ('symlink', 'it is a symbolic link'),
+    ],
+)
+def test_overwrite_replaces_only_a_bag(tmp_path, kind, reason):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.2))
+    target = tmp_path / 'out'
+    _not_a_bag(target, kind)
+    before = sorted(p.name for p in target.iterdir()) if target.is_dir() else None
+    with pytest.raises(BagError, match=rf'--overwrite replaces only a bag, and .*out is not one: '
+                       rf'{reason}; remove it yourself or choose another output'):  # fmt: skip
+        fuse_bag(source, target, overwrite=True)
+    after = sorted(p.name for p in target.iterdir()) if target.is_dir() else None
+    assert before == after
+    assert not list(tmp_path.glob('.out.*'))
+
+
+def test_output_names_up_to_the_filesystem_limit(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.2))
+    limit = os.pathconf(tmp_path, 'PC_NAME_MAX')
+    # The staging folder is '.' + NAME + '.' + 8 random characters + '.partial': 18 more bytes.
+    longest = 'n' * (limit - 18)
+    fuse_bag(source, tmp_path / longest)
+    assert (tmp_path / longest / 'metadata.yaml').exists()
+    with pytest.raises(
+        BagError,
+        match=rf'output name n{{40}}\.\.\. is {limit - 17} bytes long; this filesystem allows '
+        rf'{limit} bytes per name and the staging folder adds 18: choose a name of at most '
+        rf'{limit - 18} bytes',
+    ):
+        fuse_bag(source, tmp_path / ('n' * (limit - 17)))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(['in', longest])
+
+
+def _corrupt_overflow_pages(db3: Path) -> None:
+    """Point the overflow pages of the second half of the file past its end.
+
+    A depth image (38 kB) does not fit a 4 kB b-tree page: SQLite keeps it in a chain of
+    overflow pages, each starting with the 4-byte number of the next one (SQLite file format,
+    section 1.6). B-tree pages start with their type (2, 5, 10 or 13), overflow pages with
+    that page number, < 2**24 here, so a first byte 0. Opening the bag reads only b-tree pages;
+    reading the images then meets a page number beyond the file: "database disk image is
+    malformed".
+    """
+    data = bytearray(db3.read_bytes())
+    page = 4096
+    overflow = [k for k in range(1, len(data) // page) if data[k * page] == 0]
+    for k in overflow[len(overflow) // 2 :]:
+        data[k * page : k * page + 4] = b'\x7f\xff\xff\xff'
+    db3.write_bytes(bytes(data))
+
+
+def test_corrupt_sqlite_pages_are_a_bag_error_naming_the_last_good_message(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.5), storage='sqlite3')
+    _corrupt_overflow_pages(source / 'in.db3')
+    # rosbags reads sqlite3 bags with apsw; the corrupt page raises apsw.CorruptError mid-read.
+    with pytest.raises(
+        BagError,
+        match=r'cannot read bag .*in after /\S+ message \d+ \(log time 1700000000\.\d{9} s.*\): '
+        r'database disk image is malformed; is it complete and a bag\?',
+    ) as caught:
+        fuse_bag(source, tmp_path / 'out')
+    assert type(caught.value.__cause__).__name__ == 'CorruptError'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in']
+
+
+def _with_bad_scan(tmp_path: Path, index: int, damage) -> Path:
+    messages = scene_messages(Scene(duration=0.5))
+    scans = [i for i, (topic, *_) in enumerate(messages) if topic == '/scan']
+    topic, msgtype, log_time, raw = messages[scans[index]]
+    messages[scans[index]] = (topic, msgtype, log_time, damage(raw))
+    return write_bag(tmp_path / 'in', messages)
+
+
+# Scan 3 is stamped 0.3 s after the scene's start (1 700 000 000 s) and logged 10 ms later.
+SCAN_3 = (
+    r'/scan message 3 \(log time 1700000000\.310000000 s, header stamp 1700000000\.300000000 s\) '
+    r'in .*in: cannot decode a sensor_msgs/msg/LaserScan from '
+)
+
+
+@pytest.mark.parametrize(
+    ('damage', 'problem'),
+    [
+        (lambda raw: raw[:100], r'100 CDR bytes: a length field asks for more than the 100 bytes'),
+        (lambda raw: raw + bytes(8), r'\d+ CDR bytes: \d+ bytes hold more than one sensor_msgs'),
+    ],
+)
+def test_undecodable_scan_names_its_topic_index_stamp_and_what_is_wrong(tmp_path, damage, problem):
+    source = _with_bad_scan(tmp_path, 3, damage)
+    with pytest.raises(BagError, match='--strict: malformed ' + SCAN_3 + problem):
+        fuse_bag(source, tmp_path / 'out', strict=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in']
+    # By default the scan is skipped by the fusion, copied through and listed.
+    report = fuse_bag(source, tmp_path / 'out')
+    (skipped,) = report.malformed
+    assert skipped.topic == '/scan'
+    assert re.match(SCAN_3.split(' in ', maxsplit=1)[0] + '$', skipped.where)
+    assert re.match('cannot decode a sensor_msgs/msg/LaserScan from ' + problem, skipped.reason)
+    assert report.scans == 4
+
+
+def test_scan_that_is_not_cdr_says_so(tmp_path):
+    source = _with_bad_scan(tmp_path, 3, lambda raw: b'\x01\x02' + raw[2:])
+    # Without a CDR header the stamp cannot be read from the bytes: only the log time is named.
+    with pytest.raises(
+        BagError,
+        match=r'/scan message 3 \(log time 1700000000\.310000000 s\) in .*: cannot decode a '
+        r'sensor_msgs/msg/LaserScan from \d+ CDR bytes: it starts with 01 02, not a plain CDR '
+        r'header \(00 01 little endian, 00 00 big endian\)',
+    ):
+        fuse_bag(source, tmp_path / 'out', strict=True)
+
+
+def test_cdr_problem_words():
+    assert cdr_problem(b'\x00', LASER_SCAN, ValueError('x')) == (
+        '1 bytes are fewer than the 4-byte CDR header: the message is truncated'
+    )
+    assert 'is not UTF-8' in cdr_problem(
+        b'\x00\x01\x00\x00', LASER_SCAN, ValueError("'utf-8' codec can't decode byte 0xff")
+    )
+
+
+def test_header_stamp_from_bytes():
+    # CDR little endian: 00 01 00 00, sec = 5 (int32), nanosec = 7 (uint32).
+    raw = b'\x00\x01\x00\x00' + (5).to_bytes(4, 'little') + (7).to_bytes(4, 'little')
+    assert header_stamp_ns(raw, LASER_SCAN) == 5_000_000_007
+    big = b'\x00\x00\x00\x00' + (5).to_bytes(4, 'big') + (7).to_bytes(4, 'big')
+    assert header_stamp_ns(big, LASER_SCAN) == 5_000_000_007
+    assert header_stamp_ns(raw, 'tf2_msgs/msg/TFMessage') is None  # no header first
+    assert header_stamp_ns(raw[:11], LASER_SCAN) is None
+    # ROS 1: seq (uint32) first, then sec and nsec, little endian.
+    ros1 = (9).to_bytes(4, 'little') + (5).to_bytes(4, 'little') + (7).to_bytes(4, 'little')
+    assert header_stamp_ns(ros1, IMAGE, is_cdr=False) == 5_000_000_007
 
 
 def test_output_inside_input_is_refused(tmp_path):
@@ -280,7 +486,7 @@ def test_several_scan_topics_need_a_choice(tmp_path):
     assert report.topics.scan == '/scan2'
 
 
-def test_depth_image_of_another_size_than_camera_info_is_rejected(tmp_path):
+def test_depth_image_of_another_size_than_camera_info_is_skipped_and_listed(tmp_path):
     scene = Scene(duration=0.3)
     small = scene.camera.__class__.from_intrinsics(80, 60, 50, 50, 40, 30, frame_id='o')
     messages = [
@@ -288,8 +494,32 @@ def test_depth_image_of_another_size_than_camera_info_is_rejected(tmp_path):
         for topic, m, t, raw in scene_messages(scene)
     ]
     source = write_bag(tmp_path / 'in', messages)
-    with pytest.raises(MessageError, match=r'is 160x120 but its CameraInfo says 80x60'):
-        fuse_bag(source, tmp_path / 'out')
+    report = fuse_bag(source, tmp_path / 'out')
+    frames = sum(topic == '/camera/depth/image_raw' for topic, *_ in messages)
+    assert len(report.malformed) == frames
+    assert report.scans_paired == 0
+    assert report.scans_passed_through == report.scans == 3
+    first = report.malformed[0]
+    assert first.topic == '/camera/depth/image_raw'
+    assert 'is 160x120 but its CameraInfo says 80x60' in first.reason
+    # Every input message is still in the output, and one /scan_fused per scan.
+    assert report.messages_written == report.messages_read + report.scans
+
+
+def test_strict_stops_at_the_first_malformed_message_naming_it(tmp_path):
+    scene = Scene(duration=0.3)
+    small = scene.camera.__class__.from_intrinsics(80, 60, 50, 50, 40, 30, frame_id='o')
+    messages = [
+        (topic, m, t, camera_to_cdr(small, stamp_ns=t) if topic.endswith('camera_info') else raw)
+        for topic, m, t, raw in scene_messages(scene)
+    ]
+    source = write_bag(tmp_path / 'in', messages)
+    with pytest.raises(
+        BagError,
+        match=r'--strict: malformed /camera/depth/image_raw message 0 \(log time \d+\.\d{9} s, '
+        r'header stamp \d+\.\d{9} s\) in .*: .*is 160x120 but its CameraInfo says 80x60',
+    ):
+        fuse_bag(source, tmp_path / 'out', strict=True)
     assert not (tmp_path / 'out').exists()
     assert not list(tmp_path.glob('.out.*'))
 
@@ -347,3 +577,42 @@ def test_cli_bag_command(tmp_path, capsys):
 
 def test_storage_enum_values():
     assert [s.value for s in Storage] == ['mcap', 'sqlite3']
+
+
+def _staging_like(parent: Path, name: str, *, lock: bool = True, extra: str | None = None) -> Path:
+    """A folder as a run of `fuse_bag` to `parent/name` leaves it: lock, name/name.mcap."""
+    folder = parent / f'.{name}.abcd_123.partial'
+    (folder / name).mkdir(parents=True)
+    (folder / name / f'{name}.mcap').write_bytes(b'\x89MCAP0\r\n')
+    if lock:
+        (folder / '.lock').touch()
+    if extra is not None:
+        (folder / extra).write_text('mine')
+    return folder
+
+
+def test_sweep_removes_only_stale_staging_folders_of_our_naming(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.2))
+    work = tmp_path / 'work'
+    work.mkdir()
+    stale = _staging_like(work, 'a')  # its lock is free: the run that made it is gone
+    live = _staging_like(work, 'b')  # locked below, as a running fuse_bag holds it
+    foreign = _staging_like(work, 'c', extra='notes.txt')  # something we never write
+    old_unlocked = _staging_like(work, 'd', lock=False)  # an earlier version's leftover
+    hour_ago = wall_clock() - 3600
+    for path in [old_unlocked, *old_unlocked.rglob('*')]:
+        os.utime(path, (hour_ago, hour_ago))
+    fresh_unlocked = _staging_like(work, 'e', lock=False)  # mkdtemp done, lock not yet made
+    other_names = [work / '.f.partial', work / '.g.abc.partial', work / 'h.abcd_123.partial']
+    for folder in other_names:
+        (folder / 'x').mkdir(parents=True)
+    link = work / '.i.abcd_123.partial'
+    link.symlink_to(stale)
+    with (live / '.lock').open('rb') as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fuse_bag(source, work / 'out')
+        fuse_bag(source, work / 'out2')  # a second sweep sees the same: nothing more to take
+    left = sorted(p.name for p in work.iterdir())
+    kept = [live, foreign, fresh_unlocked, *other_names, link]
+    assert left == sorted([p.name for p in kept] + ['out', 'out2'])
+    assert (foreign / 'notes.txt').read_text() == 'mine'

@@ -22,9 +22,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from scanfuse import BagError
 from scanfuse.cli import main
+from scanfuse.frames import StampedTransform
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.messages import (
-    StampedTransform,
     depth_from_cdr,
     ros1_to_cdr,
     scan_from_cdr,

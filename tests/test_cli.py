@@ -2,10 +2,23 @@
 
 from __future__ import annotations
 
+import logging
+import os
+import re
+import shutil
+import signal
 import subprocess
 import sys
+from typing import TYPE_CHECKING
+
+import pytest
 
 from scanfuse.cli import main
+from scanfuse.ros.bag import fuse_bag
+from tests.support.synthetic import Scene, write_scene_bag
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 
 def test_help_exits_zero(capsys):
@@ -38,3 +51,263 @@ def test_missing_simulator_names_the_extra(tmp_path):
     )
     assert done.returncode == 1
     assert "pip install 'scanfuse[sim]'" in done.stderr
+
+
+# A `scanfuse bag` run that says when it is fusing and then waits on its stdin, so a test
+# can signal it mid-run without guessing at timing; the signal ends the wait.
+BLOCKING_BAG = """
+import sys
+import scanfuse.ros.bag as bag
+from scanfuse.cli import main
+
+class Blocking(bag.NullProgress):
+    def __init__(self, *args, **kwargs):
+        self.seen = 0
+
+    def advance(self, count=1):
+        self.seen += count
+        if self.seen == 10:
+            print('fusing', flush=True)
+            sys.stdin.readline()
+
+bag.RichProgress = Blocking
+raise SystemExit(main(sys.argv[1:]))
+"""
+
+
+def start_blocked_bag(source: Path, output: Path) -> subprocess.Popen[str]:
+    child = subprocess.Popen(
+        [sys.executable, '-c', BLOCKING_BAG, 'bag', str(source), str(output)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert child.stdout is not None
+    line = child.stdout.readline()
+    assert line == 'fusing\n', child.communicate(timeout=60)
+    return child
+
+
+def staging_folders(folder: Path, name: str) -> list[Path]:
+    return sorted(folder.glob(f'.{name}.*.partial'))
+
+
+def test_sigterm_while_fusing_removes_the_staging_folder(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=1.0))
+    child = start_blocked_bag(source, tmp_path / 'out')
+    (staging,) = staging_folders(tmp_path, 'out')
+    assert (staging / 'out' / 'out.mcap').is_file()  # the half-written bag
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 128 + signal.SIGTERM
+    assert 'terminated' in err
+    assert 'Traceback' not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in']
+
+
+def test_staging_left_by_a_killed_run_is_removed_by_the_next_run(tmp_path, caplog):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=1.0))
+    child = start_blocked_bag(source, tmp_path / 'out')
+    (staging,) = staging_folders(tmp_path, 'out')
+    # While that run lives, its lock keeps another run from sweeping its folder.
+    fuse_bag(source, tmp_path / 'second')
+    assert staging.is_dir()
+    child.kill()  # SIGKILL: no handler runs, the folder stays
+    child.communicate(timeout=60)
+    assert staging.is_dir()
+    with caplog.at_level(logging.INFO, logger='scanfuse.ros.staging'):
+        fuse_bag(source, tmp_path / 'third')
+    assert not staging.exists()
+    assert f'removed {staging} (' in caplog.text
+    assert 'left by an interrupted scanfuse run' in caplog.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in', 'second', 'third']
+
+
+def private_tmpfs(tmp_path: Path, options: str, command: list[str]) -> subprocess.CompletedProcess:
+    """Run `command` with a fresh tmpfs (mount `options`) at tmp_path/'mnt', in a private
+    user and mount namespace (nothing is mounted for the rest of the machine); stdout ends
+    with 'left: ' and what the tmpfs holds when the command is done."""
+    if shutil.which('unshare') is None:
+        pytest.skip('unshare (util-linux) is not installed')
+    mount = tmp_path / 'mnt'
+    mount.mkdir()
+    probe = subprocess.run(
+        ['unshare', '--user', '--map-root-user', '--mount', 'mount', '-t', 'tmpfs', 'x', mount],
+        capture_output=True,
+        check=False,
+    )
+    if probe.returncode != 0:
+        pytest.skip(f'no private mount namespace here: {probe.stderr.decode().strip()}')
+    script = (
+        'mount -t tmpfs -o "$1" scanfuse-test "$0" || exit 99; shift; "$@"; code=$?; '
+        'echo "left: $(ls -A "$0")"; exit $code'
+    )
+    return subprocess.run(
+        [
+            'unshare',
+            '--user',
+            '--map-root-user',
+            '--mount',
+            'sh',
+            '-c',
+            script,
+            mount,
+            options,
+            *command,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+
+
+def bag_command(*args: object) -> list[str]:
+    return [sys.executable, '-m', 'scanfuse.cli', 'bag', *map(str, args)]
+
+
+@pytest.mark.parametrize(
+    ('storage', 'problem'),
+    [
+        ('mcap', 'No space left on device; the disk is full; free space or write somewhere else'),
+        ('sqlite3', 'sqlite3: database or disk is full; free space or write somewhere else'),
+    ],
+)
+def test_disk_full_is_one_line(tmp_path, storage, problem):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=1.0))  # about 1.2 MB
+    out = tmp_path / 'mnt' / 'out'
+    done = private_tmpfs(tmp_path, 'size=256k', bag_command(source, out, '--storage', storage))
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip() == f'error: cannot write the output {out}: {problem}'
+    assert done.stdout.endswith('left: \n')  # no staging folder left on the full disk
+
+
+def test_read_only_output_is_one_line(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    out = tmp_path / 'mnt' / 'out'
+    done = private_tmpfs(tmp_path, 'ro', bag_command(source, out))
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip() == (
+        f'error: cannot write the output {out}: Read-only file system; '
+        'the filesystem is read-only; write somewhere else'
+    )
+
+
+def test_file_size_limit_is_one_line(tmp_path):
+    """RLIMIT_FSIZE (ulimit -f) with SIGXFSZ ignored: write(2) fails with EFBIG (POSIX)."""
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=1.0))
+    script = (
+        'import resource, signal, sys\n'
+        'signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n'
+        'resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))\n'
+        'from scanfuse.cli import main\n'
+        'raise SystemExit(main(sys.argv[1:]))\n'
+    )
+    out = tmp_path / 'out'
+    done = subprocess.run(
+        [sys.executable, '-c', script, 'bag', str(source), str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, 'PYTHONDONTWRITEBYTECODE': '1'},
+    )
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip() == (
+        f'error: cannot write the output {out}: File too large; a file grew past the size '
+        "this system allows (ulimit -f, or the filesystem's file size limit); "
+        'write somewhere else'
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in']
+
+
+def test_config_error_from_the_params_file_is_one_line(tmp_path, capsys):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    params = tmp_path / 'params.yaml'
+    params.write_text('scanfuse:\n  ros__parameters:\n    no_such_parameter: 1\n')
+    assert main(['bag', str(source), str(tmp_path / 'out'), '--params', str(params)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith('error: ')
+    assert 'no_such_parameter' in err
+    assert len(err.strip().splitlines()) == 1
+
+
+# `scanfuse simulate` whose drive says when the recording is under way, then waits on stdin.
+BLOCKING_SIMULATE = """
+import sys
+import scanfuse.sim.cli as sim_cli
+from scanfuse.cli import main
+
+scripted = sim_cli.scripted_path
+
+def blocking_path(name):
+    drive = scripted(name)
+    calls = 0
+
+    def controller(observation):
+        nonlocal calls
+        calls += 1
+        if calls == 5:
+            print('recording', flush=True)
+            sys.stdin.readline()
+        return drive(observation)
+
+    return controller
+
+sim_cli.scripted_path = blocking_path
+raise SystemExit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize('name', ['run.mcap', 'run'])
+def test_sigterm_while_simulating_leaves_nothing(tmp_path, name):
+    pytest.importorskip('mujoco')
+    out = tmp_path / name
+    argv = ['simulate', '--world', 'room', '--depth-backend', 'multiray', '--resolution', '256x144',
+            '--duration', '30', '--out', str(out)]  # fmt: skip
+    child = subprocess.Popen(
+        [sys.executable, '-c', BLOCKING_SIMULATE, *argv],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert child.stdout is not None
+    line = child.stdout.readline()
+    assert line == 'recording\n', child.communicate(timeout=60)
+    (staging,) = staging_folders(tmp_path, name)
+    assert (staging / name / f'{name}.mcap').is_file()
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 128 + signal.SIGTERM, err
+    assert 'Traceback' not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ('ros_args', 'problem'),
+    [
+        # Ranges and types are the descriptors' (scanfuse.ros.params); rclpy checks overrides.
+        (['-p', 'max_time_offset:=9.0'], r'max_time_offset out of range .*; fix the -p override'),
+        (['-p', 'obstacle_min_points:=abc'], r"expecting type 'INTEGER'.*; fix the -p override"),
+        (['-p', 'scan_topic:=bad topic'], r"Invalid topic name: .*'bad topic'; fix the topic"),
+        (['-r', '__node:=bad.name'], r"Couldn't parse remap rule: '-r __node:=bad.name'.*; ROS"),
+    ],
+)
+def test_node_start_up_errors_are_one_line(ros_args, problem):
+    pytest.importorskip('rclpy')
+    env = {
+        **os.environ,
+        'ROS_DOMAIN_ID': str(220 + os.getpid() % 10),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+    }
+    command = [sys.executable, '-m', 'scanfuse.cli', 'node', '--ros-args', *ros_args]
+    child = subprocess.Popen(command, env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == 1, err
+    assert 'Traceback' not in err
+    (line,) = [line for line in err.splitlines() if line.startswith('scanfuse node: ')]
+    assert re.search(problem, line), line

@@ -25,7 +25,7 @@ from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError, InputError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'benchmarks'))
-from reference import d2l_scan_loop
+from tests.support.reference import d2l_scan_loop
 
 # The upstream fixture: 640x480, CameraInfo K as below, no distortion.
 G_RANGE_MIN = 0.45

@@ -11,9 +11,12 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
 from scanfuse import CameraModel, MessageError, Scan, TransformError
+from scanfuse.frames import StampedTransform, TransformStore
 from scanfuse.ros import messages as rm
-from scanfuse.ros.messages import Distro, StampedTransform
-from scanfuse.ros.tf import TransformStore, quaternion_matrix
+from scanfuse.ros.messages import (
+    Distro,
+)
+from scanfuse.transforms import Transform
 
 STAMP = 1_700_000_123_456_789_012
 DISTROS = [Distro.HUMBLE, Distro.JAZZY]
@@ -351,14 +354,33 @@ def test_frame_cannot_be_its_own_parent():
         TransformStore().add(StampedTransform('a', '/a', (0, 0, 0), (0, 0, 0, 1)), static=True)
 
 
-def test_static_wins_over_dynamic_and_first_dynamic_is_kept():
+def test_static_wins_over_dynamic_and_the_latest_dynamic_is_kept():
     tree = TransformStore()
-    tree.add(StampedTransform('base_link', 'laser', (1, 0, 0), (0, 0, 0, 1)), static=False)
-    tree.add(StampedTransform('base_link', 'laser', (2, 0, 0), (0, 0, 0, 1)), static=False)
-    assert tree.lookup('base_link', 'laser')[0, 3] == 1.0
-    tree.add(StampedTransform('base_link', 'laser', (3, 0, 0), (0, 0, 0, 1)), static=True)
-    tree.add(StampedTransform('base_link', 'laser', (4, 0, 0), (0, 0, 0, 1)), static=False)
+    assert tree.add(StampedTransform('base_link', 'laser', (1, 0, 0), (0, 0, 0, 1)), static=False)
+    assert tree.add(StampedTransform('base_link', 'laser', (2, 0, 0), (0, 0, 0, 1)), static=False)
+    assert tree.lookup('base_link', 'laser')[0, 3] == 2.0
+    # The same pose again is no change (a cache built on it stays valid).
+    assert not tree.add(
+        StampedTransform('base_link', 'laser', (2, 0, 0), (0, 0, 0, 1)), static=False
+    )
+    assert tree.add(StampedTransform('base_link', 'laser', (3, 0, 0), (0, 0, 0, 1)), static=True)
+    assert not tree.add(
+        StampedTransform('base_link', 'laser', (4, 0, 0), (0, 0, 0, 1)), static=False
+    )
     assert tree.lookup('base_link', 'laser')[0, 3] == 3.0
+
+
+def test_chain_names_the_transforms_a_lookup_uses_and_roots_are_listed():
+    tree = TransformStore()
+    tree.add(StampedTransform('odom', 'base_link', (5, 0, 0), (0, 0, 0, 1)), static=False)
+    tree.add(StampedTransform('base_link', 'laser', (1, 0, 0), (0, 0, 0, 1)), static=True)
+    tree.add(StampedTransform('base_link', 'camera', (0, 1, 0), (0, 0, 0, 1)), static=True)
+    tree.add(StampedTransform('mount', 'scanner', (0, 0, 1), (0, 0, 0, 1)), static=True)
+    # base_link -> laser does not go through odom -> base_link: odometry leaves it valid.
+    assert tree.chain('base_link', 'laser') == {'laser'}
+    assert tree.chain('laser', 'camera') == {'laser', 'camera'}
+    assert tree.roots() == ['mount', 'odom']
+    assert tree.root_of('scanner') == 'mount'
 
 
 unit_quaternions = (
@@ -384,5 +406,7 @@ def test_lookup_there_and_back_is_identity(chain):
 
 def test_quaternion_matrix_of_a_quarter_turn_about_z():
     np.testing.assert_allclose(
-        quaternion_matrix(YAW_90), [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12
+        Transform.from_quaternion(YAW_90).rotation_matrix,
+        [[0, -1, 0], [1, 0, 0], [0, 0, 1]],
+        atol=1e-12,
     )

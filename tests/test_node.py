@@ -1,6 +1,6 @@
 """The live node's decisions (`LiveFusion`) and parameters, without DDS.
 
-Messages are the CDR bytes of a synthetic scene (`scanfuse.ros.synthetic`): a
+Messages are the CDR bytes of a synthetic scene (`tests.support.synthetic`): a
 wall at x = 2 m that the LiDAR sees and a 0.2 m high box whose front face is at
 x = 1.2 m, below the LiDAR's plane, that only the camera sees. The LiDAR is at
 the base origin, so straight ahead the fused range must be 1.2 m (the box) and
@@ -24,7 +24,6 @@ from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.live import Level, LiveFusion, State
-from scanfuse.ros.loopback import garbage_messages
 from scanfuse.ros.messages import (
     camera_to_cdr,
     depth_to_cdr,
@@ -38,7 +37,8 @@ from scanfuse.ros.params import (
     config_from_ros,
     fusion_param_specs,
 )
-from scanfuse.ros.synthetic import Scene, scene_messages, write_bag
+from tests.support.loopback import garbage_messages
+from tests.support.synthetic import Scene, scene_messages, write_bag
 
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
 BOX = 1.2  # metres straight ahead: the box's front face
@@ -296,9 +296,9 @@ def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up(
     scene = Scene()
     live = LiveFusion(FusionConfig(use_tf=False))
     live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=1), 0.0)
-    first = live._camera
+    first = live.stream.camera
     live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=2), 0.1)
-    assert live._camera is first  # same calibration, new stamp: the model is kept
+    assert live.stream.camera is first  # same calibration, new stamp: the model is kept
     recalibrated = CameraModel.from_intrinsics(
         scene.width,
         scene.height,
@@ -309,8 +309,12 @@ def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up(
         frame_id=scene.camera.frame_id,
     )
     live.on_camera_info(camera_to_cdr(recalibrated, stamp_ns=3), 0.2)
-    assert live._camera is not None
-    assert (live._camera.fx, live._camera.cx, live._camera.cy) == (2 * scene.focal, 10.0, 20.0)
+    assert live.stream.camera is not None
+    assert (live.stream.camera.fx, live.stream.camera.cx, live.stream.camera.cy) == (
+        2 * scene.focal,
+        10.0,
+        20.0,
+    )
 
 
 def test_a_camera_gap_between_two_reports_is_reported_by_the_next_one():

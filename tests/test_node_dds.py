@@ -24,7 +24,8 @@ from rosbags.highlevel import AnyReader
 from scanfuse.config import FusionConfig
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.messages import scan_from_cdr, typestore
-from scanfuse.ros.synthetic import Scene, write_scene_bag
+from tests.support import with_repository_on_path
+from tests.support.synthetic import Scene, write_scene_bag
 
 pytest.importorskip('rclpy')
 
@@ -55,11 +56,13 @@ class Loopback:
 
     def __init__(self, tmp_path, node_params: dict):
         self.tmp = tmp_path
-        self.env = {
-            **os.environ,
-            'ROS_DOMAIN_ID': str(domain_id()),
-            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-        }
+        self.env = with_repository_on_path(
+            {
+                **os.environ,
+                'ROS_DOMAIN_ID': str(domain_id()),
+                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+            }
+        )
         self.processes: list[subprocess.Popen] = []
         ros_args = []
         for name, value in node_params.items():
@@ -75,7 +78,7 @@ class Loopback:
         return process
 
     def loopback(self, name: str, *args: str) -> subprocess.Popen:
-        return self.start(name, '-m', 'scanfuse.ros.loopback', *args)
+        return self.start(name, '-m', 'tests.support.loopback', *args)
 
     def record(self, *topics: str, drain_until_level: int | None = None) -> None:
         args = [] if drain_until_level is None else ['--drain-until-level', str(drain_until_level)]

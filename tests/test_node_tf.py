@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore
 from scanfuse.config import FusionConfig
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.messages import TF_MESSAGE, scan_from_cdr, typestore
-from scanfuse.ros.synthetic import Scene, write_scene_bag
+from tests.support.synthetic import Scene, write_scene_bag
 from tests.test_node_dds import BOX, SCENE_PARAMS, TOLERANCE, Loopback, ahead
 
 pytest.importorskip('rclpy')

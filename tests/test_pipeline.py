@@ -1,6 +1,6 @@
 """FusionPipeline end to end on a scene whose geometry is worked out by hand.
 
-Scene (scanfuse.ros.synthetic.Scene defaults): LiDAR 0.30 m above the floor at the
+Scene (tests.support.synthetic.Scene defaults): LiDAR 0.30 m above the floor at the
 base origin sees only a wall at x = 2 m; a 0.2 m tall box (front face x = 1.2 m,
 |y| <= 0.15 m) lies below its plane; the camera is 0.10 m ahead, 0.45 m high,
 pitched 20 deg down.
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from scanfuse import FusionConfig, FusionPipeline, Method, Resampler, Scan
-from scanfuse.ros.synthetic import Scene
 from scanfuse.transforms import Extrinsics
+from tests.support.synthetic import Scene
 
 SCENE = Scene(width=320, height=240, focal=200.0, readings=720)
 

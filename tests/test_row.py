@@ -18,7 +18,7 @@ from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError, InputError, ScanfuseError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'benchmarks'))
-from reference import row_scan_loop
+from tests.support.reference import row_scan_loop
 
 CAMERA = CameraModel.from_intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5, frame_id='cam_optical')
 LIMITS = {'range_min': 0.2, 'range_max': 10.0}

@@ -15,8 +15,8 @@ from rosbags.interfaces import QosDurability
 from rosbags.typesys import Stores, get_typestore
 
 from scanfuse.cli import main
+from scanfuse.frames import TransformStore
 from scanfuse.ros.messages import transforms_from_msg
-from scanfuse.ros.tf import TransformStore
 from scanfuse.sim import SimConfig, SimError, fusion_config, record, scripted_path
 from scanfuse.sim.cli import parse_backend, parse_resolution
 from scanfuse.transforms import Extrinsics

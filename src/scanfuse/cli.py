@@ -1,20 +1,27 @@
 """`scanfuse` command line: thin typer commands over the API functions.
 
 Known errors (ScanfuseError) become one clean red line and exit code 1; anything
-else keeps its traceback.
+else keeps its traceback. The commands that write a bag take SIGTERM as they take
+Ctrl-C (an exception, so staging folders are removed on the way out) and exit 143.
 """
 
 from __future__ import annotations
 
 import logging
+import signal
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 from scanfuse.errors import ScanfuseError
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from types import FrameType
 
 app = typer.Typer(
     name='scanfuse',
@@ -25,6 +32,31 @@ app = typer.Typer(
 )
 console = Console(stderr=True)
 SIM_MODULES = frozenset({'mujoco', 'matplotlib', 'tifffile'})
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised as Ctrl-C raises KeyboardInterrupt, so every `finally` and cleanup runs.
+
+    Not a KeyboardInterrupt: typer turns those into exit code 130 before `main` sees them.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, _frame: FrameType | None) -> None:
+    raise Terminated(signum)
+
+
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (the default of `kill`, systemd, docker stop) as an exception while inside."""
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @app.command()
@@ -70,19 +102,20 @@ def bag(
     from scanfuse.ros.bag import RichProgress, fuse_bag  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
-    report = fuse_bag(
-        input_bag,
-        output,
-        config=config,
-        scan_topic=scan,
-        depth_topic=depth,
-        camera_info_topic=camera_info,
-        storage=storage,
-        overwrite=overwrite,
-        write_depth_scan=not no_depth_scan,
-        require_tf=require_tf,
-        progress=RichProgress(),
-    )
+    with terminate_as_interrupt():
+        report = fuse_bag(
+            input_bag,
+            output,
+            config=config,
+            scan_topic=scan,
+            depth_topic=depth,
+            camera_info_topic=camera_info,
+            storage=storage,
+            overwrite=overwrite,
+            write_depth_scan=not no_depth_scan,
+            require_tf=require_tf,
+            progress=RichProgress(),
+        )
     Console().print(report.table())
 
 
@@ -120,22 +153,23 @@ def simulate(
         choose_headless_gl()
     from scanfuse.sim.cli import run_simulate  # noqa: PLC0415
 
-    run_simulate(
-        out=out,
-        world=world,
-        path=path,
-        duration=duration,
-        seed=seed,
-        lidar=lidar,
-        camera=camera,
-        resolution=resolution,
-        depth_rate=depth_rate,
-        noise=not no_noise,
-        depth_backend=depth_backend,
-        snapshot=snapshot,
-        mounting=(lidar_height, camera_height, camera_pitch),
-        console=Console(),
-    )
+    with terminate_as_interrupt():
+        run_simulate(
+            out=out,
+            world=world,
+            path=path,
+            duration=duration,
+            seed=seed,
+            lidar=lidar,
+            camera=camera,
+            resolution=resolution,
+            depth_rate=depth_rate,
+            noise=not no_noise,
+            depth_backend=depth_backend,
+            snapshot=snapshot,
+            mounting=(lidar_height, camera_height, camera_pitch),
+            console=Console(),
+        )
 
 
 @app.command()
@@ -196,6 +230,9 @@ def main(argv: list[str] | None = None) -> int:
             "'sim' extra: pip install 'scanfuse[sim]'"
         )
         return 1
+    except Terminated as stop:
+        console.print('[red]terminated[/]')
+        return 128 + stop.signum
     except KeyboardInterrupt:
         console.print('[red]aborted[/]')
         return 130

@@ -150,6 +150,28 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description='largest LiDAR-to-depth stamp difference paired, seconds',
     )
+    motion_compensation: bool = Field(
+        default=True,
+        description=(
+            'with odometry, move the depth points from the camera stamp to the scan stamp '
+            '(and de-skew the LiDAR when deskew is on)'
+        ),
+    )
+    deskew: bool = Field(
+        default=True,
+        description='with odometry, move each LiDAR beam (stamp + i * time_increment) to the stamp',
+    )
+    max_odometry_extrapolation: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description=(
+            'seconds past the newest odometry a pose may be extrapolated; beyond, the pair is '
+            'not compensated and the LiDAR passes through'
+        ),
+    )
+    odom_frame: str = Field('odom', description='odometry frame (REP-105) of TF odometry')
+    odom_topic: str = Field('/odom', description='nav_msgs/Odometry topic')
     camera_timeout: float = Field(
         0.5,
         gt=0.0,

@@ -16,18 +16,21 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import shutil
 import sqlite3
 import struct
-import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import Enum
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+import apsw
 import numpy as np
+import yaml
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from rosbags.convert.converter import (
@@ -46,27 +49,26 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
-from scanfuse.pipeline import FusionPipeline
+from scanfuse.frames import frame_name
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
     TF_MESSAGE,
-    DepthImage,
     Distro,
     camera_from_msg,
     check_depth_matches_camera,
     depth_from_msg,
     deserialize,
-    frame_name,
     is_depth_encoding,
+    odometry_from_msg,
     scan_from_msg,
     scan_to_cdr,
     transforms_from_msg,
 )
-from scanfuse.ros.sync import StreamPairer, seconds_to_ns
-from scanfuse.ros.tf import TransformStore
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.ros.staging import STAGING_OVERHEAD, Staging, output_error
+from scanfuse.stream import FusionStream
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -75,13 +77,14 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
     from scanfuse.camera import CameraModel
-    from scanfuse.ros.sync import Pair
-    from scanfuse.scan import Scan
+    from scanfuse.stream import StreamOutput
 
 logger = logging.getLogger(__name__)
 
 TF_STATIC_TOPIC = '/tf_static'
 TF_TOPIC = '/tf'
+# How much later than its stamp order a depth frame may be logged and still be paired.
+REORDER_S = 0.5
 # Every error a damaged or unreadable bag can raise inside rosbags and its storage back ends.
 _READ_ERRORS = (
     AnyReaderError,
@@ -89,6 +92,7 @@ _READ_ERRORS = (
     Ros2ReaderError,
     SerdeError,
     TypesysError,
+    apsw.Error,  # rosbags reads sqlite3 bags with apsw (a corrupt page: apsw.CorruptError)
     sqlite3.Error,
     struct.error,
     EOFError,
@@ -185,6 +189,8 @@ class BagReport:
     bag_duration_s: float
     wall_time_s: float
     scan_times_s: tuple[float, ...] = field(repr=False)
+    scans_compensated: int = 0
+    malformed: tuple[MalformedMessage, ...] = ()
 
     @property
     def median_scan_time_s(self) -> float:
@@ -211,12 +217,20 @@ class BagReport:
             ('messages written', str(self.messages_written)),
             ('scans paired with depth', str(self.scans_paired)),
             ('scans passed through (no depth)', str(self.scans_passed_through)),
+            (
+                'scans motion-compensated',
+                f'{self.scans_compensated}' + ('' if self.scans_compensated else ' (no odometry)'),
+            ),
+            ('malformed messages skipped', str(len(self.malformed))),
             ('depth frames', str(self.depth_frames)),
             ('median time per scan', f'{self.median_scan_time_s * 1e3:.2f} ms'),
             ('p99 time per scan', f'{self.p99_scan_time_s * 1e3:.2f} ms'),
             ('wall time', f'{self.wall_time_s:.2f} s'),
             ('real-time factor', f'{self.real_time_factor:.1f}x'),
         ]
+        rows += [(f'  skipped: {item.topic}', item.describe()) for item in self.malformed[:10]]
+        if len(self.malformed) > 10:
+            rows.append(('  skipped', f'... and {len(self.malformed) - 10} more'))
         for name, value in rows:
             table.add_row(name, value)
         return table
@@ -236,25 +250,29 @@ def fuse_bag(
     require_tf: bool = False,
     distro: Distro = Distro.HUMBLE,
     progress: BagProgress | None = None,
+    strict: bool = False,
 ) -> BagReport:
-    """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag."""
+    """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag.
+
+    A malformed message is copied through when it can be, skipped by the fusion and listed in
+    the report; with `strict` it stops the run with an error naming it.
+    """
     config = config or FusionConfig()
     source, target = Path(input), Path(output)
     storage = _storage(storage)
     _check_paths(source, target, overwrite=overwrite)
     started = time.perf_counter()
-    staging = Path(
-        tempfile.mkdtemp(prefix=f'.{target.name}.', suffix='.partial', dir=target.parent)
-    )
-    try:
+    # Written in a locked staging folder beside the target, renamed into place when complete;
+    # the folder goes on any exit (SIGTERM included: the CLI turns it into an exception).
+    with Staging(target) as staging:
         with _open_reader(source, distro) as reader:
             job = _BagJob(reader, config, distro, write_depth_scan=write_depth_scan)
-            topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
-            job.read_static(require_tf=require_tf)
-            counts = job.run(staging / target.name, storage, progress or NullProgress())
-        _move_into_place(staging / target.name, target, overwrite=overwrite)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+            with _located(job), _writing(target):
+                topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
+                job.read_static(require_tf=require_tf)
+                counts = job.run(staging.output, storage, progress or NullProgress(), strict=strict)
+        with _writing(target):
+            _move_into_place(staging.output, target, overwrite=overwrite)
     return BagReport(
         input=source,
         output=target,
@@ -287,12 +305,96 @@ def _check_paths(source: Path, target: Path, *, overwrite: bool) -> None:
             'write the fused bag somewhere else (the input is never modified)'
         )
         raise BagError(msg)
-    if target.exists() and not overwrite:
-        msg = f'output {target} exists already; choose another path or pass --overwrite'
-        raise BagError(msg)
+    if target.exists() or target.is_symlink():
+        if not overwrite:
+            msg = f'output {target} exists already; choose another path or pass --overwrite'
+            raise BagError(msg)
+        _check_replaceable(target)
     if not target.parent.is_dir():
         msg = f'folder {target.parent} of the output bag does not exist; create it first'
         raise BagError(msg)
+    _check_name_length(target)
+
+
+def _check_name_length(target: Path) -> None:
+    """The staging folder `.NAME.XXXXXXXX.partial` must fit the filesystem's NAME_MAX too."""
+    try:
+        limit = os.pathconf(target.parent, 'PC_NAME_MAX')
+    except (OSError, ValueError):
+        return  # no limit reported: mkdtemp's own error says it, if there is one
+    length = len(os.fsencode(target.name))
+    if length + STAGING_OVERHEAD > limit:
+        shown = target.name if len(target.name) <= 40 else f'{target.name[:40]}...'
+        msg = (
+            f'output name {shown} is {length} bytes long; this filesystem allows {limit} bytes '
+            f'per name and the staging folder adds {STAGING_OVERHEAD}: choose a name of at most '
+            f'{limit - STAGING_OVERHEAD} bytes'
+        )
+        raise BagError(msg)
+
+
+# First bytes of the storage files a bag can hold (the MCAP magic; SQLite's header string).
+_BAG_MAGIC = {'.mcap': b'\x89MCAP0\r\n', '.db3': b'SQLite format 3\x00'}
+_SQLITE_SIDECARS = ('.db3-journal', '.db3-wal', '.db3-shm')
+
+
+def _check_replaceable(target: Path) -> None:
+    """--overwrite replaces a bag (folder or single file) and nothing else."""
+    reason = _not_a_bag(target)
+    if reason is not None:
+        msg = (
+            f'--overwrite replaces only a bag, and {target} is not one: {reason}; '
+            'remove it yourself or choose another output'
+        )
+        raise BagError(msg)
+
+
+def _not_a_bag(path: Path) -> str | None:
+    """Why `path` is not a bag scanfuse could have written, or None when it is one."""
+    if path.is_symlink():
+        return 'it is a symbolic link'
+    if path.is_file():
+        return _not_a_storage_file(path)
+    if not path.is_dir():
+        return 'it is neither a file nor a folder'
+    entries = sorted(path.iterdir())
+    names = {entry.name for entry in entries}
+    if 'metadata.yaml' not in names:
+        return 'it has no metadata.yaml'
+    storage = 0
+    for entry in entries:
+        if entry.name == 'metadata.yaml':
+            problem = _not_bag_metadata(entry)
+        elif entry.name.endswith(_SQLITE_SIDECARS) and not entry.is_symlink() and entry.is_file():
+            continue
+        else:
+            problem = _not_a_storage_file(entry)
+            storage += 1
+        if problem is not None:
+            return problem
+    return None if storage else 'it holds no .mcap or .db3 file'
+
+
+def _not_a_storage_file(path: Path) -> str | None:
+    magic = _BAG_MAGIC.get(path.suffix)
+    if magic is None or path.is_symlink() or not path.is_file():
+        return f'{path.name} is not a .mcap or .db3 file'
+    with path.open('rb') as stream:
+        if stream.read(len(magic)) != magic:
+            return f'{path.name} does not start like a {path.suffix} file'
+    return None
+
+
+def _not_bag_metadata(path: Path) -> str | None:
+    if path.is_symlink() or not path.is_file():
+        return 'its metadata.yaml is not a file'
+    try:
+        content = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        content = None
+    if not isinstance(content, dict) or 'rosbag2_bagfile_information' not in content:
+        return 'its metadata.yaml is not rosbag2 metadata'
+    return None
 
 
 def _move_into_place(written: Path, target: Path, *, overwrite: bool) -> None:
@@ -300,11 +402,128 @@ def _move_into_place(written: Path, target: Path, *, overwrite: bool) -> None:
         if not overwrite:
             msg = f'output {target} appeared while fusing; not overwriting it'
             raise BagError(msg)
-        if target.is_dir() and not target.is_symlink():
+        _check_replaceable(target)  # again: it may have changed while fusing
+        if target.is_dir():
             shutil.rmtree(target)
         else:
             target.unlink()
     written.rename(target)
+
+
+@contextmanager
+def _writing(target: Path) -> Iterator[None]:
+    """Failures to write the output (disk full, read-only, too long a name) as one BagError."""
+    try:
+        yield
+    except OSError as err:
+        raise output_error(target, err) from err
+    except sqlite3.Error as err:
+        # The sqlite3 writer's own words ("database or disk is full"); reads never get here:
+        # rosbags reads with apsw, and `_guard_read` wraps those errors.
+        full = 'full' in str(err)
+        hint = 'free space or write somewhere else' if full else 'choose another output path'
+        msg = f'cannot write the output {target}: sqlite3: {err}; {hint}'
+        raise BagError(msg) from err
+
+
+@dataclass(frozen=True)
+class MessagePosition:
+    """Where a message is in a bag: its topic, its index on that topic (from 0), its times."""
+
+    topic: str
+    index: int
+    log_time_ns: int
+    msgtype: str
+    raw: bytes = field(repr=False)
+    is_cdr: bool = True
+
+    @property
+    def stamp_ns(self) -> int | None:
+        """The header stamp read straight from the bytes (so known even when decoding fails)."""
+        return header_stamp_ns(self.raw, self.msgtype, is_cdr=self.is_cdr)
+
+    def describe(self) -> str:
+        """'/scan message 17 (log time 1700000001.700000000 s, stamp ...)'."""
+        times = [f'log time {format_ns(self.log_time_ns)} s']
+        stamp = self.stamp_ns
+        if stamp is not None:
+            times.append(f'header stamp {format_ns(stamp)} s')
+        return f'{self.topic} message {self.index} ({", ".join(times)})'
+
+
+# Types whose serialized form starts with a std_msgs/Header (ROS 1: after a uint32 seq).
+_HEADER_FIRST = frozenset({LASER_SCAN, IMAGE, CAMERA_INFO})
+
+
+def format_ns(stamp_ns: int) -> str:
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return f'{sec}.{nanosec:09d}'
+
+
+def header_stamp_ns(raw: bytes, msgtype: str, *, is_cdr: bool = True) -> int | None:
+    """The stamp of a message whose first field is a Header, from its first 12 bytes."""
+    if msgtype not in _HEADER_FIRST or len(raw) < 12:
+        return None
+    if is_cdr:
+        # CDR: 4-byte encapsulation (00 00 big endian, 00 01 little endian), then sec, nanosec.
+        if raw[0] != 0 or raw[1] not in {0, 1}:
+            return None
+        order = '<' if raw[1] == 1 else '>'
+    else:
+        order = '<'  # ROS 1: little endian seq, then sec, nsec
+    sec, nanosec = struct.unpack_from(f'{order}iI', raw, 4)
+    if not 0 <= nanosec < 1_000_000_000:
+        return None
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
+def cdr_problem(raw: bytes, msgtype: str, err: BaseException) -> str:
+    """What is wrong with CDR bytes rosbags could not decode as `msgtype`, in words."""
+    text = str(err)
+    if len(raw) < 4:
+        return f'{len(raw)} bytes are fewer than the 4-byte CDR header: the message is truncated'
+    if raw[0] != 0 or raw[1] not in {0, 1}:
+        return (
+            f'it starts with {raw[:2].hex(" ")}, not a plain CDR header (00 01 little endian, '
+            '00 00 big endian): the bytes are not CDR or not a ROS 2 message'
+        )
+    if 'size mismatch' in text:
+        return (
+            f'{len(raw)} bytes hold more than one {msgtype}: bytes are left over at the end, so '
+            'they are another type or were written with another definition'
+        )
+    if 'UnicodeDecodeError' in repr(err.__cause__) or "codec can't decode" in text:
+        return f'a string field is not UTF-8 ({text})'
+    if any(word in text for word in ('Invalid sequence length', 'Invalid string length', 'unpack')):
+        return (
+            f'a length field asks for more than the {len(raw)} bytes hold ({text}): '
+            f'the message is truncated, or is not a {msgtype}'
+        )
+    return text
+
+
+@contextmanager
+def _located(job: _BagJob) -> Iterator[None]:
+    """Message errors name the message (topic, index on it, log time, stamp) they came from."""
+    try:
+        yield
+    except MessageError as err:
+        position = job.position
+        if position is None:
+            raise
+        msg = f'{position.describe()} in {job.source}: {problem_of(position, err)}'
+        raise MessageError(msg) from err
+
+
+def problem_of(position: MessagePosition, err: Exception) -> str:
+    """What is wrong with the message at `position`, in words."""
+    cause = err if isinstance(err, SerdeError) else err.__cause__
+    if isinstance(cause, SerdeError) and position.is_cdr:
+        return (
+            f'cannot decode a {position.msgtype} from {len(position.raw)} CDR bytes: '
+            f'{cdr_problem(position.raw, position.msgtype, cause)}'
+        )
+    return str(err) or type(err).__name__
 
 
 class _ReaderScope:
@@ -330,13 +549,20 @@ def _open_reader(source: Path, distro: Distro) -> _ReaderScope:
     return _ReaderScope(source, distro)
 
 
-def _guard_read(source: Path, action: Callable[[], Any]) -> Any:
+def _guard_read(
+    source: Path, action: Callable[[], Any], after: MessagePosition | None = None
+) -> Any:
+    """Run a read; a damaged bag's error becomes a BagError naming the last good message."""
     try:
         return action()
     except ScanfuseError:
         raise
     except (*_READ_ERRORS, OSError) as err:
-        msg = f'cannot read bag {source}: {err or type(err).__name__}; is it complete and a bag?'
+        where = f' after {after.describe()}' if after is not None else ''
+        msg = (
+            f'cannot read bag {source}{where}: {err or type(err).__name__}; '
+            'is it complete and a bag?'
+        )
         raise BagError(msg) from err
 
 
@@ -351,15 +577,22 @@ def describe_topics(topics: dict[str, str]) -> str:
     return ', '.join(f'{name} ({msgtype})' for name, msgtype in sorted(topics.items())) or 'none'
 
 
-@dataclass
-class _Frame:
-    image: DepthImage
-    camera: CameraModel
+@dataclass(frozen=True)
+class MalformedMessage:
+    """An input message the fusion could not use: where it is and why."""
+
+    topic: str
+    where: str  # `MessagePosition.describe()`
+    reason: str
+
+    def describe(self) -> str:
+        return f'{self.where}: {self.reason}'
 
 
-@dataclass
-class _PendingScan:
-    scan: Scan
+@dataclass(frozen=True)
+class _Lidar:
+    """What the stream hands back with a scan: its CDR and log time."""
+
     raw: bytes
     log_time: int
 
@@ -384,10 +617,15 @@ class _BagJob:
         self.converters: dict[str, Callable[[bytes], bytes]] = {}
         self.choice: TopicChoice | None = None
         self.first_camera: CameraModel | None = None
-        self.extrinsics = Extrinsics.from_config(config)
-        self.extrinsics_source = 'parameters'
+        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
+        # or until no frame logged up to REORDER_S late can still be near enough.
+        self.stream: FusionStream[_Lidar] = FusionStream(
+            config, pair_wait=config.max_time_offset + REORDER_S, release_when_silent=False
+        )
         self.scan_frame = ''
         self.depth_frame = ''
+        # The message being handled, so errors can name it (see `_located`).
+        self.position: MessagePosition | None = None
 
     # ------------------------------------------------------------ reading helpers
 
@@ -432,10 +670,22 @@ class _BagJob:
         if not connections:  # rosbags reads every topic when given none
             return
         iterator = self.reader.messages(connections=connections)
+        indices: dict[str, int] = {}
         while True:
-            item = _guard_read(self.source, lambda: next(iterator, None))
+            item = _guard_read(self.source, lambda: next(iterator, None), self.position)
             if item is None:
                 return
+            connection, log_time, raw = item
+            index = indices.get(connection.topic, 0)
+            indices[connection.topic] = index + 1
+            self.position = MessagePosition(
+                connection.topic,
+                index,
+                log_time,
+                self.msgtype(connection),
+                raw,
+                is_cdr=self.reader.is2,
+            )
             yield item
 
     def first_message(self, topic: str) -> Any:
@@ -556,48 +806,41 @@ class _BagJob:
             raise BagError(msg)
         self.scan_frame = frame_name(str(scan.header.frame_id))
         self.depth_frame = frame_name(str(depth.header.frame_id) or info.header.frame_id)
-        tree = self._read_tf()
-        base = self.config.base_frame
-        try:
-            self.extrinsics = self._extrinsics_from_tf(tree)
-        except TransformError as err:
-            if require_tf:
-                msg = f'--require-tf: no extrinsics from TF in {self.source}: {err}'
-                raise TransformError(msg) from err
-            logger.warning('extrinsics from the parameters, not TF: %s', err)
-        else:
-            self.extrinsics_source = f'TF ({base} -> {self.scan_frame}, {self.depth_frame})'
-
-    def _extrinsics_from_tf(self, tree: TransformStore) -> Extrinsics:
-        if not self.config.use_tf:
-            msg = 'use_tf is false in the parameters'
+        self._read_mounting()
+        choice = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
+        if choice.extrinsics is None:
+            raise TransformError(choice.source)
+        if require_tf and not choice.source.startswith('TF'):
+            msg = f'--require-tf: no extrinsics from TF in {self.source}: {choice.source}'
             raise TransformError(msg)
-        base = self.config.base_frame
-        return Extrinsics(
-            base_to_laser=Transform.from_matrix(tree.lookup(base, self.scan_frame)),
-            base_to_camera_optical=Transform.from_matrix(tree.lookup(base, self.depth_frame)),
-        )
+        if not choice.source.startswith('TF'):
+            logger.warning('extrinsics from the %s', choice.source)
 
-    def _read_tf(self) -> TransformStore:
-        tree = TransformStore()
+    @property
+    def extrinsics_source(self) -> str:
+        return self.stream.extrinsics_source
+
+    def _read_mounting(self) -> None:
+        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it)."""
         for topic, static in ((TF_STATIC_TOPIC, True), (TF_TOPIC, False)):
             connections = [c for c in self.connections(topic) if self.msgtype(c) == TF_MESSAGE]
             for connection, _, raw in self.messages(connections):
-                tree.add_all(transforms_from_msg(self.decode(connection, raw)), static=static)
-        return tree
+                transforms = transforms_from_msg(self.decode(connection, raw))
+                self.stream.add_transforms(transforms, static=static, odometry=False)
 
     # ------------------------------------------------------------ the pass
 
-    def run(self, path: Path, storage: Storage, progress: BagProgress) -> dict[str, Any]:
+    def run(
+        self, path: Path, storage: Storage, progress: BagProgress, *, strict: bool = False
+    ) -> dict[str, Any]:
+        """Copy every message, feed the stream in log-time order, write what it releases."""
         assert self.choice is not None
         assert self.first_camera is not None
-        pipeline = FusionPipeline(self.config)
-        pairer: StreamPairer[_PendingScan, _Frame] = StreamPairer(
-            seconds_to_ns(self.config.max_time_offset)
-        )
-        camera = self.first_camera
-        counts = {'messages_read': 0, 'scans': 0, 'depth_frames': 0, 'scans_paired': 0}
+        stream = self.stream
+        stream.add_camera_info(self.first_camera)
+        counts = {'messages_read': 0}
         times: list[float] = []
+        malformed: list[MalformedMessage] = []
         writer = Writer(path, version=8, storage_plugin=_PLUGINS[storage])
         try:
             writer.open()
@@ -613,43 +856,42 @@ class _BagJob:
                 else None
             )
 
-            def emit(pairs: list[Pair[_PendingScan, _Frame]]) -> None:
-                for pair in pairs:
-                    lidar = pair.scan
-                    if pair.depth is None:
+            def emit(released: list[StreamOutput[_Lidar]]) -> None:
+                for result in released:
+                    lidar = result.token
+                    if result.fused is None:
                         writer.write(fused_conn, lidar.log_time, lidar.raw)
                         continue
                     start = time.perf_counter()
-                    result = pipeline.fuse(
-                        lidar.scan, pair.depth.image.depth, pair.depth.camera, self.extrinsics
-                    )
                     fused = scan_to_cdr(result.fused, self.store)
-                    depth_raw = scan_to_cdr(result.depth_scan, self.store) if depth_conn else b''
-                    times.append(time.perf_counter() - start)
+                    depth_raw = (
+                        scan_to_cdr(result.depth_scan, self.store)
+                        if depth_conn is not None and result.depth_scan is not None
+                        else None
+                    )
+                    if result.timings is not None:
+                        times.append(result.timings.total + time.perf_counter() - start)
                     writer.write(fused_conn, lidar.log_time, fused)
-                    if depth_conn is not None:
+                    if depth_conn is not None and depth_raw is not None:
                         writer.write(depth_conn, lidar.log_time, depth_raw)
-                    counts['scans_paired'] += 1
 
             progress.start(self.reader.message_count)
             try:
                 for connection, log_time, raw in self.messages(self.reader.connections):
                     counts['messages_read'] += 1
-                    cdr = self.to_cdr(connection, raw)
+                    try:
+                        cdr = self.to_cdr(connection, raw)
+                    except MessageError as err:
+                        self._malformed(malformed, err, strict=strict)
+                        progress.advance()
+                        continue
                     writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
-                    if connection.topic == self.choice.scan:
-                        scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
-                        counts['scans'] += 1
-                        emit(pairer.add_scan(scan.stamp_ns, _PendingScan(scan, cdr, log_time)))
-                    elif connection.topic == self.choice.depth:
-                        image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
-                        check_depth_matches_camera(image, camera)
-                        counts['depth_frames'] += 1
-                        emit(pairer.add_depth(image.stamp_ns, _Frame(image, camera)))
-                    elif connection.topic == self.choice.camera_info:
-                        camera = camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store))
+                    try:
+                        emit(self._feed(connection, cdr, log_time))
+                    except (MessageError, SerdeError, ValueError, struct.error) as err:
+                        self._malformed(malformed, err, strict=strict)
                     progress.advance()
-                emit(pairer.finish())
+                emit(stream.finish())
             finally:
                 progress.stop()
             written = sum(writer.counts.values())
@@ -662,13 +904,55 @@ class _BagJob:
             if writer.storage is not None:
                 writer.abort()
             raise
+        stream_counts = stream.counts
         return {
             **counts,
             'messages_written': written,
-            'scans_passed_through': counts['scans'] - counts['scans_paired'],
-            'peak_depth_frames': pairer.peak_frames,
+            'scans': stream_counts.scans,
+            'depth_frames': stream_counts.depth_frames,
+            'scans_paired': stream_counts.fused,
+            'scans_passed_through': stream_counts.passed_through,
+            'scans_compensated': stream_counts.compensated,
+            'peak_depth_frames': stream_counts.peak_frames,
+            'malformed': tuple(malformed),
             'scan_times_s': tuple(times),
         }
+
+    def _feed(
+        self, connection: Connection, cdr: bytes, log_time: int
+    ) -> list[StreamOutput[_Lidar]]:
+        """One input message into the stream; the scans it releases."""
+        assert self.choice is not None
+        topic, stream = connection.topic, self.stream
+        if topic == self.choice.scan:
+            scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
+            return stream.add_scan(scan, _Lidar(cdr, log_time), log_time)
+        if topic == self.choice.depth:
+            image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
+            if stream.camera is not None:
+                check_depth_matches_camera(image, stream.camera)
+            return stream.add_depth(image.stamp_ns, image.depth, log_time, image.frame_id)
+        if topic == self.choice.camera_info:
+            stream.add_camera_info(camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store)))
+        elif topic == TF_TOPIC and self.msgtype(connection) == TF_MESSAGE:
+            stream.add_transforms(
+                transforms_from_msg(deserialize(cdr, TF_MESSAGE, self.store)), static=False
+            )
+        elif topic == self.config.odom_topic and self.msgtype(connection) == ODOMETRY:
+            sample = odometry_from_msg(deserialize(cdr, ODOMETRY, self.store))
+            stream.add_odometry(sample.stamp_ns, sample.pose)
+        return stream.tick(log_time)
+
+    def _malformed(self, found: list[MalformedMessage], err: Exception, *, strict: bool) -> None:
+        """Skip and list the message being handled (or, with `strict`, stop on it)."""
+        position = self.position
+        assert position is not None  # set by `messages` for every message it yields
+        item = MalformedMessage(position.topic, position.describe(), problem_of(position, err))
+        if strict:
+            msg = f'--strict: malformed {item.where} in {self.source}: {item.reason}'
+            raise BagError(msg) from err
+        found.append(item)
+        self.stream.note_malformed(position.topic, err)
 
     def _add_connections(self, writer: Writer) -> dict[tuple[int, int], Connection]:
         """One output connection per input connection (ROS 1 connections of a topic merge)."""

@@ -1,59 +1,46 @@
-"""What the live node decides, without rclpy: pairing, pass-through, failures and health.
+"""The live node's adapter, without rclpy: CDR in, scans to publish and health out.
 
-The rclpy node (`scanfuse.ros.node`) only moves CDR bytes between DDS and this
-class, so every decision here is testable without DDS and the node and the bag
-processor share one decode/encode path (`scanfuse.ros.messages`) and one fusion
-(`FusionPipeline`).
-
-Rules (issue 7): a scan is fused with the depth frame whose stamp is nearest its
-own within `max_time_offset`, as the bag processor pairs; with `pair_wait > 0`
-a scan newer than every frame received waits at most that long for a frame
-stamped at or after it (that frame may be the nearer one), else it is paired
-with what has arrived. The camera silent longer than `camera_timeout`, no
-CameraInfo yet, or no frame near enough: the LiDAR's own bytes are published
-unchanged. Malformed messages are counted, logged once per kind and dropped.
-Nothing is published without a LiDAR scan.
+The rclpy node (`scanfuse.ros.node`) only moves CDR bytes between DDS and this class; this
+class decodes them (`scanfuse.ros.messages`, the bag processor's decoder) and feeds the one
+`FusionStream`, which decides pairing, pass-through, extrinsics and motion compensation
+exactly as it does for `scanfuse bag`. What is the node's own: the monotonic clock, the
+CDR of pass-through scans (published unchanged), CameraInfo decoded only when it changes,
+and the health it reports on /diagnostics.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scanfuse.errors import MessageError, ScanfuseError, TransformError
-from scanfuse.pipeline import FusionPipeline
+from scanfuse.errors import MessageError, ScanfuseError
 from scanfuse.ros.messages import (
     camera_from_cdr,
     check_depth_matches_camera,
     depth_from_cdr,
-    frame_name,
+    odometry_from_cdr,
     scan_from_cdr,
     scan_to_cdr,
     transforms_from_cdr,
     typestore,
 )
-from scanfuse.ros.sync import UNPAIRED, pair_nearest, seconds_to_ns
-from scanfuse.ros.tf import TransformStore
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.stream import FusionStream, Passed, StreamOutput
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
-    from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
-    from scanfuse.ros.messages import DepthImage, RawMessage
-    from scanfuse.scan import Scan
+    from scanfuse.ros.messages import RawMessage
 
 logger = logging.getLogger(__name__)
 
-# Frames kept for pairing: at 30 Hz and max_time_offset 0.1 s about 7 are ever useful.
-MAX_FRAMES = 16
 WARN_EVERY_S = 5.0
+# Median processing time above this share of the scan period: the node falls behind.
+TOO_SLOW_SHARE = 0.8
 
 
 class Level(IntEnum):
@@ -71,6 +58,9 @@ class State(str, Enum):
     PASS_THROUGH = 'pass-through (camera silent)'  # noqa: S105 - not a password
     NO_CAMERA_INFO = 'pass-through (no CameraInfo)'
     NO_LIDAR = 'no LiDAR scans: publishing nothing'
+    CAMERA_UNUSABLE = 'camera input unusable'
+    NO_EXTRINSICS = 'pass-through (extrinsics refused)'
+    TOO_SLOW = 'processing too slow'
 
 
 @dataclass(frozen=True)
@@ -94,36 +84,30 @@ class Health:
 
 
 @dataclass
-class _Frame:
-    stamp_ns: int
-    image: DepthImage
-    camera: CameraModel
-
-
-@dataclass
-class _Pending:
-    scan: Scan
-    raw: bytes
-    received: float
-    deadline: float
-
-
-@dataclass
 class _Window:
-    """Counts since the last health report."""
+    """What happened since the last health report (a report covers its whole window, so a
+    short camera gap between two reports is not hidden by the timer's phase)."""
 
     scans: int = 0
     paired: int = 0
     times: list[float] = field(default_factory=list)
-    # Scans passed through because the camera was silent: a report covers its whole window,
-    # so a gap shorter than the report period is not hidden by the timer's phase.
-    silent_camera_ns: int | None = None
+    stamps: list[int] = field(default_factory=list)
+    passed: dict[Passed, int] = field(default_factory=dict)
+    empty_depth: int = 0  # fused scans whose depth scan held no reading at all
+    malformed_depth: int = 0
+
+
+Problem = tuple[Level, State, str]
 
 
 def _without_stamp(raw: RawMessage) -> bytes | None:
     """A message's CDR bytes less its header stamp (bytes 4-12, after the encapsulation)."""
     data = bytes(raw)
     return data[:4] + data[12:] if len(data) > 12 else None
+
+
+def _ns(seconds: float) -> int:
+    return round(seconds * 1e9)
 
 
 class LiveFusion:
@@ -138,37 +122,50 @@ class LiveFusion:
         store: Typestore | None = None,
     ) -> None:
         self.store = store or typestore()
-        self.pair_wait = pair_wait
         self.lidar_timeout = lidar_timeout
-        self.tf = TransformStore()
-        self.malformed: dict[str, int] = {}
+        self.stream: FusionStream[bytes] = FusionStream(config, pair_wait=pair_wait)
         self.published = 0
-        self.passed_through = 0
-        self._frames: deque[_Frame] = deque(maxlen=MAX_FRAMES)
-        self._pending: deque[_Pending] = deque()
-        self._camera: CameraModel | None = None
         self._camera_key: bytes | None = None
         self._last_scan: float | None = None
-        self._last_depth: float | None = None
         self._started: float | None = None  # first message or health report
         self._last_warning: dict[str, float] = {}
         self._window = _Window()
         self._window_start: float | None = None
-        self._extrinsics: dict[tuple[str, str], Extrinsics] = {}
-        self.extrinsics_source = 'parameters'
-        self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
 
+    @property
+    def config(self) -> FusionConfig:
+        return self.stream.config
+
+    @property
+    def pair_wait(self) -> float:
+        return self.stream.pair_wait_ns / 1e9
+
+    @pair_wait.setter
+    def pair_wait(self, seconds: float) -> None:
+        self.stream.pair_wait_ns = seconds * 1e9
+
+    @property
+    def malformed(self) -> dict[str, int]:
+        return self.stream.counts.malformed
+
+    @property
+    def passed_through(self) -> int:
+        return self.stream.counts.passed_through
+
+    @property
+    def extrinsics_source(self) -> str:
+        return self.stream.extrinsics_source
+
     def reconfigure(self, config: FusionConfig) -> None:
         """Use a new configuration from the next scan on (ray tables and plans are rebuilt)."""
-        self.config = config
-        self.pipeline = FusionPipeline(config)
-        self._extrinsics.clear()
+        self.stream.reconfigure(config)
 
     def warm_up(self) -> None:
         """Fuse one tiny synthetic frame, so compiled kernels load now and not on a live scan."""
         from scanfuse.camera import CameraModel  # noqa: PLC0415
+        from scanfuse.pipeline import FusionPipeline  # noqa: PLC0415
         from scanfuse.scan import Scan  # noqa: PLC0415
 
         camera = CameraModel.from_intrinsics(16, 12, 10.0, 10.0, 7.5, 5.5, frame_id='warm_up')
@@ -192,29 +189,26 @@ class LiveFusion:
         try:
             scan = scan_from_cdr(raw, self.store)
         except MessageError as err:
-            self._malformed('scan', err)
+            self.stream.note_malformed('scan', err)
             return []
         self._last_scan = now
         self._window.scans += 1
-        pending = _Pending(scan, bytes(raw), now, now + self.pair_wait)
-        if self._should_wait(scan, now):
-            self._pending.append(pending)
-            return self._release(now)
-        return [*self._release(now, flush=True), self._resolve(pending, now)]
+        self._window.stamps.append(scan.stamp_ns)
+        return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now)))
 
     def on_depth(self, raw: RawMessage, now: float) -> list[Output]:
         self._note_start(now)
         try:
             image = depth_from_cdr(raw, self.store)
-            if self._camera is not None:
-                check_depth_matches_camera(image, self._camera)
+            if self.stream.camera is not None:
+                check_depth_matches_camera(image, self.stream.camera)
         except MessageError as err:
-            self._malformed('depth image', err)
-            return self._release(now)
-        self._last_depth = now
-        if self._camera is not None:
-            self._frames.append(_Frame(image.stamp_ns, image, self._camera))
-        return self._release(now)
+            self.stream.note_malformed('depth image', err)
+            self._window.malformed_depth += 1
+            return self._outputs(self.stream.tick(_ns(now)))
+        return self._outputs(
+            self.stream.add_depth(image.stamp_ns, image.depth, _ns(now), image.frame_id)
+        )
 
     def on_camera_info(self, raw: RawMessage, now: float) -> None:
         self._note_start(now)
@@ -225,122 +219,79 @@ class LiveFusion:
         try:
             camera = camera_from_cdr(raw, self.store)
         except MessageError as err:
-            self._malformed('camera info', err)
+            self.stream.note_malformed('camera info', err)
             return
         self._camera_key = key
-        if camera != self._camera:
-            self._camera = camera
-            self._frames.clear()
+        self.stream.add_camera_info(camera)
 
     def on_tf(self, raw: RawMessage, *, static: bool) -> None:
         try:
-            self.tf.add_all(transforms_from_cdr(raw, self.store), static=static)
-        except (MessageError, TransformError) as err:
-            self._malformed('tf', err)
+            transforms = transforms_from_cdr(raw, self.store)
+        except ScanfuseError as err:
+            self.stream.note_malformed('tf', err)
             return
-        self._extrinsics.clear()
+        self.stream.add_transforms(transforms, static=static)
+
+    def on_odometry(self, raw: RawMessage) -> None:
+        try:
+            sample = odometry_from_cdr(raw, self.store)
+        except ScanfuseError as err:
+            self.stream.note_malformed('odometry', err)
+            return
+        self.stream.add_odometry(sample.stamp_ns, sample.pose)
 
     def on_tick(self, now: float) -> list[Output]:
         """Scans whose wait for a newer frame is over."""
-        return self._release(now)
+        return self._outputs(self.stream.tick(_ns(now)))
 
     def next_deadline(self) -> float | None:
         """When the oldest waiting scan must be released (monotonic s), None when none waits."""
-        return self._pending[0].deadline if self._pending else None
-
-    # ------------------------------------------------------------ decisions
+        deadline = self.stream.next_deadline_ns()
+        return None if deadline is None else deadline / 1e9
 
     def camera_alive(self, now: float) -> bool:
-        return self._last_depth is not None and now - self._last_depth <= self.config.camera_timeout
+        return self.stream.camera_alive(_ns(now))
 
-    def _should_wait(self, scan: Scan, now: float) -> bool:
-        if self.pair_wait <= 0.0 or self._camera is None or not self.camera_alive(now):
-            return False
-        return not self._frames or self._frames[-1].stamp_ns < scan.stamp_ns
+    # ------------------------------------------------------------ outputs
 
-    def _release(self, now: float, *, flush: bool = False) -> list[Output]:
-        """Pending scans, oldest first, that have a frame after them or waited long enough."""
-        out = []
-        while self._pending:
-            first = self._pending[0]
-            newest = self._frames[-1].stamp_ns if self._frames else None
-            ready = newest is not None and newest >= first.scan.stamp_ns
-            if not (ready or flush or now >= first.deadline or not self.camera_alive(now)):
-                break
-            out.append(self._resolve(self._pending.popleft(), now))
-        return out
+    def _outputs(self, results: list[StreamOutput[bytes]]) -> list[Output]:
+        return [self._encode(result) for result in results]
 
-    def _resolve(self, pending: _Pending, now: float) -> Output:
-        scan = pending.scan
-        if self._camera is None:
-            self._warn_throttled(
-                'camera info',
-                now,
-                f'no CameraInfo on {self.config.camera_info_topic} yet: passing the LiDAR through',
-            )
-            return self._pass_through(pending)
-        if not self.camera_alive(now):
-            self._window.silent_camera_ns = pending.scan.stamp_ns
-            return self._pass_through(pending)
-        stamps = np.array([frame.stamp_ns for frame in self._frames], dtype=np.int64)
-        index = int(
-            pair_nearest([scan.stamp_ns], stamps, seconds_to_ns(self.config.max_time_offset))[0]
-        )
-        if index == UNPAIRED:
-            return self._pass_through(pending)
-        frame = self._frames[index]
+    def _encode(self, result: StreamOutput[bytes]) -> Output:
+        self.published += 1
+        received = result.arrived_ns / 1e9
+        window = self._window
+        if result.passed is not None:
+            window.passed[result.passed] = window.passed.get(result.passed, 0) + 1
+            if result.passed is Passed.NO_CAMERA_INFO:
+                self._warn_throttled(
+                    'camera info',
+                    received,
+                    f'no CameraInfo on {self.config.camera_info_topic} yet: '
+                    'passing the LiDAR through',
+                )
+        fused = result.fused
+        if fused is None:
+            return Output(result.token, None, received, with_camera=False)
         try:
-            result = self.pipeline.fuse(
-                scan, frame.image.depth, frame.camera, self._extrinsics_for(scan, frame)
-            )
-            fused = scan_to_cdr(result.fused, self.store)
-            depth_scan = (
+            fused_raw = scan_to_cdr(fused, self.store)
+            depth_raw = (
                 scan_to_cdr(result.depth_scan, self.store)
-                if self.config.publish_depth_scan
+                if self.config.publish_depth_scan and result.depth_scan is not None
                 else None
             )
         except ScanfuseError as err:
-            self._malformed('fusion', err)
-            return self._pass_through(pending)
-        self._window.paired += 1
-        self._window.times.append(result.timings.total)
-        self.published += 1
-        return Output(fused, depth_scan, pending.received, with_camera=True)
-
-    def _pass_through(self, pending: _Pending) -> Output:
-        self.published += 1
-        self.passed_through += 1
-        return Output(pending.raw, None, pending.received, with_camera=False)
-
-    def _extrinsics_for(self, scan: Scan, frame: _Frame) -> Extrinsics | None:
-        """Extrinsics from TF when it relates both sensors to the base, else the parameters."""
-        if not self.config.use_tf:
-            self.extrinsics_source = 'parameters (use_tf is false)'
-            return None
-        key = (frame_name(scan.frame_id), frame_name(frame.image.frame_id or frame.camera.frame_id))
-        cached = self._extrinsics.get(key)
-        if cached is not None:
-            return cached
-        base = self.config.base_frame
-        try:
-            extrinsics = Extrinsics(
-                base_to_laser=Transform.from_matrix(self.tf.lookup(base, key[0])),
-                base_to_camera_optical=Transform.from_matrix(self.tf.lookup(base, key[1])),
-            )
-        except (TransformError, ScanfuseError):
-            self.extrinsics_source = 'parameters (TF does not relate the sensors to the base)'
-            return None
-        self._extrinsics[key] = extrinsics
-        self.extrinsics_source = f'TF ({base} -> {key[0]}, {key[1]})'
-        return extrinsics
+            self.stream.note_malformed('fusion', err)
+            return Output(result.token, None, received, with_camera=False)
+        if result.with_camera:
+            window.paired += 1
+            if result.timings is not None:
+                window.times.append(result.timings.total)
+            if result.depth_scan is not None and np.isnan(result.depth_scan.ranges).all():
+                window.empty_depth += 1
+        return Output(fused_raw, depth_raw, received, with_camera=result.with_camera)
 
     # ------------------------------------------------------------ failures
-
-    def _malformed(self, kind: str, err: ScanfuseError) -> None:
-        count = self.malformed.get(kind, 0) + 1
-        self.malformed[kind] = count
-        if count == 1:
-            logger.warning('dropped a malformed %s (further ones are only counted): %s', kind, err)
 
     def _warn_throttled(self, key: str, now: float, message: str) -> None:
         last = self._last_warning.get(key)
@@ -364,7 +315,8 @@ class LiveFusion:
         start, self._window_start = self._window_start, now
         seconds = max(now - start, 1e-9) if start is not None else 0.0
         times_ms = np.array(window.times) * 1e3
-        camera_age = now - self._last_depth if self._last_depth is not None else float('inf')
+        camera_age = self.stream.camera_age_s(_ns(now))
+        counts = self.stream.counts
         values = {
             'scan rate (Hz)': f'{window.scans / seconds:.2f}' if seconds else '0',
             'paired rate (Hz)': f'{window.paired / seconds:.2f}' if seconds else '0',
@@ -372,42 +324,86 @@ class LiveFusion:
             'processing time max (ms)': f'{times_ms.max():.2f}' if times_ms.size else 'nan',
             'camera age (s)': f'{camera_age:.3f}',
             'published': str(self.published),
-            'passed through': str(self.passed_through),
+            'passed through': str(counts.passed_through),
+            'motion compensated': str(counts.compensated),
+            'de-skewed': str(counts.deskewed),
             'extrinsics': self.extrinsics_source,
-            **{f'malformed {kind}': str(count) for kind, count in sorted(self.malformed.items())},
+            **{f'passed ({reason.value})': str(n) for reason, n in counts.passed.items()},
+            **{f'malformed {kind}': str(count) for kind, count in sorted(counts.malformed.items())},
         }
-        level, state, message = self._classify(now, camera_age)
-        if level == Level.OK and window.silent_camera_ns is not None:
-            level, state = Level.WARN, State.PASS_THROUGH
-            message = (
-                f'no depth image on {self.config.depth_topic} within camera_timeout for a part '
-                'of the last report period: LiDAR passed through'
-            )
+        level, state, message = self._classify(now, camera_age, window)
         values['state'] = state.value
         return Health(level, state, message, values)
 
-    def _classify(self, now: float, camera_age: float) -> tuple[Level, State, str]:
+    def _classify(self, now: float, camera_age: float, window: _Window) -> tuple[Level, State, str]:
+        """The first problem found, most severe first; OK when there is none."""
+        problems = (
+            self._lidar_problem(now),
+            self._camera_info_problem(),
+            self._extrinsics_problem(window),
+            self._silence_problem(camera_age, window),
+            self._usable_problem(window),
+            self._speed_problem(window),
+        )
+        return next((p for p in problems if p is not None), (Level.OK, State.FUSING, 'fusing'))
+
+    def _lidar_problem(self, now: float) -> Problem | None:
         lidar_age = now - (self._last_scan if self._last_scan is not None else self._started or now)
-        if self._last_scan is None or lidar_age > self.lidar_timeout:
-            what = 'no LiDAR scan yet' if self._last_scan is None else 'LiDAR silent'
-            return (
-                Level.ERROR,
-                State.NO_LIDAR,
-                f'{what} on {self.config.scan_topic} ({lidar_age:.1f} s): publishing nothing',
+        if self._last_scan is not None and lidar_age <= self.lidar_timeout:
+            return None
+        what = 'no LiDAR scan yet' if self._last_scan is None else 'LiDAR silent'
+        message = f'{what} on {self.config.scan_topic} ({lidar_age:.1f} s): publishing nothing'
+        return Level.ERROR, State.NO_LIDAR, message
+
+    def _camera_info_problem(self) -> Problem | None:
+        if self.stream.camera is not None:
+            return None
+        message = f'no CameraInfo on {self.config.camera_info_topic}: LiDAR passed through'
+        return Level.WARN, State.NO_CAMERA_INFO, message
+
+    def _extrinsics_problem(self, window: _Window) -> Problem | None:
+        if not window.passed.get(Passed.NO_EXTRINSICS):
+            return None
+        return Level.ERROR, State.NO_EXTRINSICS, self.extrinsics_source
+
+    def _silence_problem(self, camera_age: float, window: _Window) -> Problem | None:
+        config = self.config
+        silent_now = camera_age > config.camera_timeout
+        if not (silent_now or window.passed.get(Passed.CAMERA_SILENT)):
+            return None
+        if window.malformed_depth:
+            message = (
+                f'{window.malformed_depth} malformed depth images on {config.depth_topic} '
+                'in the last period: LiDAR passed through'
             )
-        if self._camera is None:
-            return (
-                Level.WARN,
-                State.NO_CAMERA_INFO,
-                f'no CameraInfo on {self.config.camera_info_topic}: LiDAR passed through',
-            )
-        if camera_age > self.config.camera_timeout:
-            return (
-                Level.WARN,
-                State.PASS_THROUGH,
-                (
-                    f'no depth image on {self.config.depth_topic} for {camera_age:.1f} s: '
-                    'LiDAR passed through'
-                ),
-            )
-        return Level.OK, State.FUSING, 'fusing'
+            return Level.WARN, State.CAMERA_UNUSABLE, message
+        age = (
+            f'for {camera_age:.1f} s'
+            if silent_now
+            else 'within camera_timeout for a part of the last report period'
+        )
+        message = f'no depth image on {config.depth_topic} {age}: LiDAR passed through'
+        return Level.WARN, State.PASS_THROUGH, message
+
+    def _usable_problem(self, window: _Window) -> Problem | None:
+        unusable = window.passed.get(Passed.FUSION_FAILED, 0) + window.empty_depth
+        if not unusable or window.paired > window.empty_depth:
+            return None
+        message = (
+            f'the camera contributes nothing: {unusable} scans of the last period had no '
+            'usable depth (check the CameraInfo distortion and the depth encoding)'
+        )
+        return Level.WARN, State.CAMERA_UNUSABLE, message
+
+    def _speed_problem(self, window: _Window) -> Problem | None:
+        if not window.times or len(window.stamps) < 2:
+            return None
+        period = float(np.median(np.diff(np.sort(window.stamps)))) / 1e9
+        p50 = float(np.median(window.times))
+        if not (period > 0.0 and p50 > TOO_SLOW_SHARE * period):
+            return None
+        message = (
+            f'processing too slow: {p50 * 1e3:.1f} ms per scan at a scan period of '
+            f'{period * 1e3:.1f} ms (lower obstacle_min_points or the image size)'
+        )
+        return Level.WARN, State.TOO_SLOW, message

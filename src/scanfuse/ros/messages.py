@@ -8,6 +8,7 @@ hand. ROS 1 messages are converted to ROS 2 CDR with the typestore's
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 from functools import cache
@@ -19,6 +20,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from scanfuse.camera import DEPTH_ENCODINGS, CameraModel, decode_depth
 from scanfuse.errors import InputError, MessageError
+from scanfuse.frames import StampedTransform, frame_name
+from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
 from scanfuse.transforms import MAX_TRANSLATION
 
@@ -33,6 +36,7 @@ IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 TF_MESSAGE = 'tf2_msgs/msg/TFMessage'
 TRANSFORM_STAMPED = 'geometry_msgs/msg/TransformStamped'
+ODOMETRY = 'nav_msgs/msg/Odometry'
 NANOSECONDS = 1_000_000_000
 
 
@@ -68,20 +72,6 @@ class DepthImage:
     @property
     def height(self) -> int:
         return int(self.depth.shape[0])
-
-
-@dataclass(frozen=True)
-class StampedTransform:
-    """One `geometry_msgs/TransformStamped`: the pose of `child` in `parent`.
-
-    `rotation` is the unit quaternion (x, y, z, w), `translation` metres.
-    """
-
-    parent: str
-    child: str
-    translation: tuple[float, float, float]
-    rotation: tuple[float, float, float, float]
-    stamp_ns: int = 0
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -339,11 +329,6 @@ def check_depth_matches_camera(image: DepthImage, camera: CameraModel) -> None:
 # ---------------------------------------------------------------- TF
 
 
-def frame_name(frame_id: str) -> str:
-    """A TF frame id without the leading slash ROS 1 allowed ('/laser' is 'laser' in tf2)."""
-    return frame_id.lstrip('/')
-
-
 def transforms_from_msg(message: Any) -> list[StampedTransform]:
     """The transforms of a `tf2_msgs/TFMessage`."""
     out = []
@@ -407,3 +392,68 @@ def transforms_from_cdr(raw: RawMessage, store: Typestore | None = None) -> list
 def tf_message_to_cdr(transforms: list[StampedTransform], store: Typestore | None = None) -> bytes:
     store = store or typestore()
     return serialize(tf_message_to_msg(transforms, store), TF_MESSAGE, store)
+
+
+@dataclass(frozen=True)
+class OdometrySample:
+    """A `nav_msgs/Odometry` reduced to what fusion needs: the planar pose of the base."""
+
+    stamp_ns: int
+    frame_id: str  # the odometry frame (odom)
+    child_frame_id: str  # the base frame
+    pose: PlanarPose
+
+
+def odometry_from_msg(message: Any) -> OdometrySample:
+    """The planar pose (x, y, yaw) of a `nav_msgs/Odometry`."""
+    position = message.pose.pose.position
+    q = message.pose.pose.orientation
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    values = (float(position.x), float(position.y), x, y, z, w)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not all(math.isfinite(v) for v in values) or abs(norm - 1.0) > 1e-3:
+        msg = (
+            f'Odometry in frame {message.header.frame_id!r} has position '
+            f'({values[0]}, {values[1]}) and an orientation of norm {norm:.4f}: it needs finite '
+            'values and a unit quaternion'
+        )
+        raise MessageError(msg)
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return OdometrySample(
+        stamp_to_ns(message.header.stamp),
+        frame_name(str(message.header.frame_id)),
+        frame_name(str(message.child_frame_id)),
+        PlanarPose(values[0], values[1], yaw),
+    )
+
+
+def odometry_from_cdr(raw: RawMessage, store: Typestore | None = None) -> OdometrySample:
+    return odometry_from_msg(deserialize(raw, ODOMETRY, store))
+
+
+def odometry_to_cdr(sample: OdometrySample, store: Typestore | None = None) -> bytes:
+    """A `nav_msgs/Odometry` with the planar pose (covariances and twist zero)."""
+    store = store or typestore()
+    types = store.types
+    pose = sample.pose
+    message = types[ODOMETRY](
+        header=_header(store, sample.stamp_ns, sample.frame_id),
+        child_frame_id=sample.child_frame_id,
+        pose=types['geometry_msgs/msg/PoseWithCovariance'](
+            pose=types['geometry_msgs/msg/Pose'](
+                position=types['geometry_msgs/msg/Point'](pose.x, pose.y, 0.0),
+                orientation=types['geometry_msgs/msg/Quaternion'](
+                    0.0, 0.0, math.sin(pose.yaw / 2), math.cos(pose.yaw / 2)
+                ),
+            ),
+            covariance=np.zeros(36, dtype=np.float64),
+        ),
+        twist=types['geometry_msgs/msg/TwistWithCovariance'](
+            twist=types['geometry_msgs/msg/Twist'](
+                linear=types['geometry_msgs/msg/Vector3'](0.0, 0.0, 0.0),
+                angular=types['geometry_msgs/msg/Vector3'](0.0, 0.0, 0.0),
+            ),
+            covariance=np.zeros(36, dtype=np.float64),
+        ),
+    )
+    return serialize(message, ODOMETRY, store)

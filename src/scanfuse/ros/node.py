@@ -28,7 +28,9 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
+from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -40,7 +42,7 @@ from rclpy.utilities import ok, remove_ros_args
 from sensor_msgs.msg import CameraInfo, Image, LaserScan
 
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
-from scanfuse.errors import ConfigError, ScanfuseError
+from scanfuse.errors import ScanfuseError
 from scanfuse.ros.live import LiveFusion
 from scanfuse.ros.live_view import (
     DEFAULT_HOST,
@@ -79,6 +81,10 @@ TF_STATIC_QOS = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
+# Best effort matches reliable and best-effort odometry publishers alike.
+ODOMETRY_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
+)
 # Fire just after a deadline, so `now >= deadline` holds when the timer runs.
 DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
@@ -175,6 +181,7 @@ class ScanfuseNode:
         self.node.create_subscription(
             CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
         )
+        self.odometry_source = self._subscribe_odometry(config.odom_topic)
         self.fused_pub = self.node.create_publisher(LaserScan, config.fused_topic, OUTPUT_QOS)
         self.depth_pub = (
             self.node.create_publisher(LaserScan, config.depth_scan_topic, OUTPUT_QOS)
@@ -191,7 +198,8 @@ class ScanfuseNode:
         self.deadline_due: float | None = None
         self.rosout.info(
             f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
-            f'(method {config.method.value}; extrinsics: {self.tf_source})'
+            f'(method {config.method.value}; extrinsics: {self.tf_source}; '
+            f'odometry: {self.odometry_source})'
         )
         if isinstance(self.view, FoxgloveView):
             self.rosout.info(f'Foxglove live view on {self.view.url}')
@@ -211,6 +219,17 @@ class ScanfuseNode:
         )
         self.node.create_subscription(TFMessage, '/tf', self._on_tf, TF_QOS, raw=True)
         return '/tf_static and /tf, else parameters'
+
+    def _subscribe_odometry(self, topic: str) -> str:
+        try:
+            from nav_msgs.msg import Odometry  # noqa: PLC0415 - the ros extra has it
+        except ImportError:
+            return f'TF only (nav_msgs is not installed, {topic} is not read)'
+        self.node.create_subscription(Odometry, topic, self._on_odometry, ODOMETRY_QOS, raw=True)
+        return f'{topic} and TF'
+
+    def _on_odometry(self, raw: bytes) -> None:
+        self._guard('odometry', lambda: self.live.on_odometry(raw))
 
     def _on_tf_static(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=True)
@@ -347,16 +366,48 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     return parser.parse_args(remove_ros_args(args=list(argv))[1:])
 
 
+def _one_line(err: Exception) -> str:
+    """rclpy's multi-line messages (a caret under a bad name, rcl's file:line) on one line."""
+    lines = [line.strip() for line in str(err).splitlines()]
+    text = ' '.join(line for line in lines if line and set(line) != {'^'})
+    return text.split(', at /', 1)[0]  # rcl appends ", at /path/file.c:LINE" per frame
+
+
+def _start_error(err: Exception) -> int:
+    if isinstance(err, ParameterException):
+        # rclpy checks -p overrides against the descriptors' ranges and types at declaration.
+        hint = 'fix the -p override or the parameter file'
+    elif isinstance(err, NameValidationException):
+        hint = 'fix the topic name in the -p override or the parameter file'
+    elif isinstance(err, rclpy_implementation.RCLInvalidROSArgsError):
+        hint = 'ROS arguments are: --ros-args -r from:=to -p name:=value --params-file FILE'
+    else:
+        hint = ''
+    print(f'scanfuse node: {_one_line(err)}' + (f'; {hint}' if hint else ''), file=sys.stderr)
+    return 1
+
+
+# Start-up errors of rclpy that a user's arguments cause; they end the node with one line.
+_START_ERRORS = (
+    ScanfuseError,
+    ParameterException,
+    NameValidationException,
+    rclpy_implementation.RCLInvalidROSArgsError,
+)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the node until Ctrl-C or shutdown; 0 on a clean stop, 1 on a configuration error."""
     argv = list(sys.argv if argv is None else ['scanfuse', *argv])
-    options = _parse(argv)
     try:
+        options = _parse(argv)
         defaults, settings = _load_defaults(options.params_file)
-    except ConfigError as err:
-        print(f'scanfuse node: {err}', file=sys.stderr)
-        return 1
-    rclpy.init(args=argv)
+    except _START_ERRORS as err:
+        return _start_error(err)
+    try:
+        rclpy.init(args=argv)
+    except _START_ERRORS as err:
+        return _start_error(err)
     try:
         try:
             fusion = ScanfuseNode(
@@ -365,9 +416,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 foxglove_port=options.foxglove,
                 foxglove_host=options.foxglove_host,
             )
-        except ScanfuseError as err:
-            print(f'scanfuse node: {err}', file=sys.stderr)
-            return 1
+        except _START_ERRORS as err:
+            return _start_error(err)
         handler = _RosLogHandler(fusion.rosout)
         library_logger = logging.getLogger('scanfuse')
         library_logger.addHandler(handler)

@@ -27,6 +27,7 @@ START_UP_ONLY = frozenset(
         'camera_info_topic',
         'fused_topic',
         'depth_scan_topic',
+        'odom_topic',
         'publish_depth_scan',
     }
 )

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,12 +43,13 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 
+from scanfuse.errors import BagError
+from scanfuse.frames import StampedTransform
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
     TF_MESSAGE,
-    StampedTransform,
     camera_to_cdr,
     depth_to_cdr,
     scan_to_cdr,
@@ -57,6 +57,7 @@ from scanfuse.ros.messages import (
     tf_message_to_cdr,
     typestore,
 )
+from scanfuse.ros.staging import Staging, output_error
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.sensors import LASER_FRAME, OPTICAL_FRAME
 from scanfuse.sim.simulation import (
@@ -293,39 +294,39 @@ def record(
 
     `out` ending in `.mcap` becomes one MCAP file (readable by rosbags and by the
     `mcap` tools); any other name becomes a rosbag2 directory with metadata.yaml.
+    The bag is written in a staging folder beside `out` (`scanfuse.ros.staging`) and
+    renamed into place when complete, so an interrupted run leaves no half bag at `out`.
     """
     out = Path(out)
-    if out.exists():
+    if out.exists() or out.is_symlink():
         msg = f'{out} exists already; remove it or choose another --out'
         raise SimError(msg)
     single_file = out.suffix == '.mcap'
-    bag_dir = out.with_name(out.name + '.partial') if single_file else out
-    if bag_dir.exists():
-        msg = f'{bag_dir} is left over from an interrupted recording; remove it'
-        raise SimError(msg)
     simulation = Simulation(config)
     start_pose = simulation.true_pose()
     started = time.perf_counter()
     try:
-        with Writer(bag_dir, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
-            sink = BagSink(writer)
-            sink.open(simulation.robot)
-            simulation.run(duration, controller, sink, progress)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with Staging(out) as staging:
+            with Writer(staging.output, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+                sink = BagSink(writer)
+                sink.open(simulation.robot)
+                simulation.run(duration, controller, sink, progress)
+            written = staging.output / f'{out.name}.mcap' if single_file else staging.output
+            if out.exists() or out.is_symlink():
+                msg = f'{out} appeared while recording; not overwriting it'
+                raise SimError(msg)
+            written.rename(out)
     except WriterError as err:
-        shutil.rmtree(bag_dir, ignore_errors=True)
         msg = f'cannot write the bag {out}: {err}'
         raise SimError(msg) from err
-    except BaseException:
-        # An interrupted or failed run leaves no half-written bag behind.
-        shutil.rmtree(bag_dir, ignore_errors=True)
-        raise
+    except OSError as err:
+        raise SimError(*output_error(out, err).args) from err
+    except BagError as err:  # the staging folder could not be made
+        raise SimError(*err.args) from err
     finally:
         simulation.close()
     wall_time = time.perf_counter() - started
-    if single_file:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        (bag_dir / f'{bag_dir.name}.mcap').replace(out)
-        shutil.rmtree(bag_dir)
     if snapshot is not None and sink.first_lidar is not None:
         from scanfuse.sim.snapshot import save_snapshot  # noqa: PLC0415
 

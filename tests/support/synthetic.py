@@ -21,12 +21,12 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from scanfuse.camera import CameraModel
+from scanfuse.frames import StampedTransform
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
     TF_MESSAGE,
-    StampedTransform,
     camera_to_cdr,
     depth_to_cdr,
     scan_to_cdr,

@@ -1,8 +1,8 @@
 """Peers of the live node for tests and benchmarks, each run as its own process over DDS.
 
-    python -m scanfuse.ros.loopback play BAG [--garbage-at S]   replay a bag at real time
-    python -m scanfuse.ros.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
-    python -m scanfuse.ros.loopback set-param NAME VALUE --out RESULT.json
+    python -m tests.support.loopback play BAG [--garbage-at S]   replay a bag at real time
+    python -m tests.support.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
+    python -m tests.support.loopback set-param NAME VALUE --out RESULT.json
 
 Data topics are published best effort (like Gazebo and camera drivers), /tf_static
 transient local. `record` writes what it received to an MCAP bag whose log times
@@ -43,7 +43,7 @@ DISCOVERY_TIMEOUT_S = 20.0
 
 
 def _ros_types() -> dict[str, Any]:
-    from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+    from diagnostic_msgs.msg import DiagnosticArray
 
     types: dict[str, Any] = {
         LASER_SCAN: LaserScan,
@@ -52,7 +52,7 @@ def _ros_types() -> dict[str, Any]:
         DIAGNOSTICS: DiagnosticArray,
     }
     try:
-        from tf2_msgs.msg import TFMessage  # noqa: PLC0415
+        from tf2_msgs.msg import TFMessage
     except ImportError:
         pass
     else:
@@ -62,7 +62,7 @@ def _ros_types() -> dict[str, Any]:
 
 def _qos(topic: str) -> QoSProfile:
     if topic == '/tf_static':
-        from scanfuse.ros.node import TF_STATIC_QOS  # noqa: PLC0415
+        from scanfuse.ros.node import TF_STATIC_QOS
 
         return TF_STATIC_QOS
     return qos_profile_sensor_data
@@ -82,7 +82,7 @@ GARBAGE_ROUNDS = 5
 
 def garbage_messages() -> list[tuple[str, bytes]]:
     """Malformed depth images: truncated CDR, and a valid Image with the wrong encoding."""
-    import numpy as np  # noqa: PLC0415
+    import numpy as np
 
     store = typestore()
     good = depth_to_cdr(np.zeros((4, 4), dtype=np.uint16), frame_id='cam', stamp_ns=1, store=store)
@@ -224,8 +224,8 @@ def set_param(
     With `go`, the request is sent `after` seconds after that file appears (the
     service is found before, so the moment of the change is known to the caller).
     """
-    from rcl_interfaces.srv import SetParameters  # noqa: PLC0415
-    from rclpy.parameter import Parameter  # noqa: PLC0415
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
 
     node = rclpy.create_node('scanfuse_param_setter')
     client = node.create_client(SetParameters, f'/{node_name}/set_parameters')
@@ -260,13 +260,13 @@ def set_param(
 
 def _parse_value(text: str) -> Any:
     """A parameter value from text as `ros2 param set` reads it (YAML scalars)."""
-    import yaml  # noqa: PLC0415
+    import yaml
 
     return yaml.safe_load(text)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m scanfuse.ros.loopback')
+    parser = argparse.ArgumentParser(prog='python -m tests.support.loopback')
     commands = parser.add_subparsers(dest='command', required=True)
     play_cmd = commands.add_parser('play')
     play_cmd.add_argument('bag', type=Path)

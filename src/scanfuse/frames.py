@@ -1,19 +1,21 @@
-"""A small TF tree for offline use: sensor mounting poses from /tf_static (and /tf).
+"""A small TF tree: sensor mounting poses from /tf_static and /tf, looked up like tf2.
 
-tf2 stores, for every frame, the pose of that frame in its one parent; any two
-frames of one tree are related through their closest common ancestor. Mounting
-poses of sensors are fixed, so this store keeps one transform per child frame:
-/tf_static wins over /tf, and from /tf the first transform of a frame is kept.
+tf2 stores, for every frame, the pose of that frame in its one parent; any two frames of
+one tree are related through their closest common ancestor. Mounting poses are fixed, so
+one pose per child frame is kept: the latest one received (a `/tf_static` pose is not
+replaced by a `/tf` one). `add` says whether a pose changed, so that a cache of extrinsics
+is cleared only when a transform it was built from changes, not at every odometry sample.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scanfuse.errors import TransformError
-from scanfuse.ros.messages import StampedTransform, frame_name
+from scanfuse.transforms import Transform
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -23,27 +25,27 @@ if TYPE_CHECKING:
     Matrix = npt.NDArray[np.float64]
 
 
-def quaternion_matrix(rotation: tuple[float, float, float, float]) -> Matrix:
-    """3x3 rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = rotation
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ],
-        dtype=np.float64,
-    )
+def frame_name(frame_id: str) -> str:
+    """A TF frame id without the leading slash ROS 1 allowed ('/laser' is 'laser' in tf2)."""
+    return frame_id.lstrip('/')
 
 
-def transform_matrix(
-    translation: tuple[float, float, float], rotation: tuple[float, float, float, float]
-) -> Matrix:
-    """4x4 homogeneous matrix mapping child coordinates to parent coordinates."""
-    matrix = np.eye(4, dtype=np.float64)
-    matrix[:3, :3] = quaternion_matrix(rotation)
-    matrix[:3, 3] = translation
-    return matrix
+@dataclass(frozen=True)
+class StampedTransform:
+    """One `geometry_msgs/TransformStamped`: the pose of `child` in `parent`.
+
+    `rotation` is the unit quaternion (x, y, z, w), `translation` metres.
+    """
+
+    parent: str
+    child: str
+    translation: tuple[float, float, float]
+    rotation: tuple[float, float, float, float]
+    stamp_ns: int = 0
+
+    def matrix(self) -> Matrix:
+        """4x4 homogeneous matrix mapping child coordinates to parent coordinates."""
+        return Transform.from_quaternion(self.rotation, self.translation).matrix
 
 
 class TransformStore:
@@ -54,28 +56,54 @@ class TransformStore:
         self._pose_in_parent: dict[str, Matrix] = {}
         self._static: set[str] = set()
 
-    def add(self, transform: StampedTransform, *, static: bool) -> None:
-        """Record the pose of `transform.child` in `transform.parent`."""
+    def __len__(self) -> int:
+        return len(self._parent)
+
+    def add(self, transform: StampedTransform, *, static: bool) -> bool:
+        """Record the pose of `transform.child` in `transform.parent`; True when it changed."""
         child = frame_name(transform.child)
         parent = frame_name(transform.parent)
         if child == parent:
             msg = f'transform from frame {child!r} to itself; a frame cannot be its own parent'
             raise TransformError(msg)
-        if not static and child in self._parent:
-            return
+        if not static and child in self._static:
+            return False
+        pose = transform.matrix()
+        if self._parent.get(child) == parent and np.array_equal(self._pose_in_parent[child], pose):
+            return False
         if static:
             self._static.add(child)
         self._parent[child] = parent
-        self._pose_in_parent[child] = transform_matrix(transform.translation, transform.rotation)
+        self._pose_in_parent[child] = pose
+        return True
 
-    def add_all(self, transforms: Iterable[StampedTransform], *, static: bool) -> None:
-        for transform in transforms:
-            self.add(transform, static=static)
+    def add_all(self, transforms: Iterable[StampedTransform], *, static: bool) -> set[str]:
+        """Record every transform; the child frames whose pose changed."""
+        return {t.child for t in transforms if self.add(t, static=static)}
 
     @property
     def frames(self) -> list[str]:
         """Every frame named in the store, sorted."""
         return sorted(set(self._parent) | set(self._parent.values()))
+
+    def roots(self) -> list[str]:
+        """Frames with no parent: the roots of the trees in the store, sorted."""
+        return sorted(set(self._parent.values()) - set(self._parent))
+
+    def root_of(self, frame: str) -> str:
+        return self._chain_to_root(frame_name(frame))[-1]
+
+    def chain(self, target: str, source: str) -> set[str]:
+        """The child frames whose poses `lookup(target, source)` uses."""
+        target_chain = self._chain_to_root(frame_name(target))
+        source_chain = self._chain_to_root(frame_name(source))
+        common = next((frame for frame in source_chain if frame in target_chain), None)
+        if common is None:
+            return set(target_chain) | set(source_chain)
+        upto = (
+            target_chain[: target_chain.index(common)] + source_chain[: source_chain.index(common)]
+        )
+        return set(upto)
 
     def _chain_to_root(self, frame: str) -> list[str]:
         chain = [frame]

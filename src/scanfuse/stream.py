@@ -1,0 +1,565 @@
+"""`FusionStream`: the one stateful core, fed timestamped events, returning fused scans.
+
+The bag processor, the live node and the simulator's closed loop are thin adapters that
+decode messages and feed this class; every policy lives here, once:
+
+- **Pairing.** A scan is fused with the buffered depth frame whose stamp is nearest its own
+  within `max_time_offset`. A scan newer than every frame waits (at most `pair_wait`
+  seconds of the caller's clock) for a frame stamped at or after it: frames come in stamp
+  order, so once one has, no later frame can be nearer. A scan also stops waiting when the
+  camera is silent (`camera_timeout`) or there is no CameraInfo. Scans leave in the order
+  they came: a waiting scan holds back the ones behind it, and none is ever dropped.
+- **Pass-through.** No CameraInfo, camera silent, no frame near enough, extrinsics refused,
+  odometry not covering the pair, or a fusion error: the LiDAR scan leaves unchanged
+  (`StreamOutput.fused is None`: the adapter publishes the LiDAR's own bytes), counted per
+  reason and logged once per reason.
+- **Extrinsics.** From TF when it relates `base_frame` to both sensors, else from the
+  mounting parameters when TF knows neither sensor frame (or `use_tf` is false); when TF
+  knows a sensor frame but not its way to `base_frame`, fusion is refused with a message
+  naming the trees' roots (guessing the mounting then reports the floor as obstacles).
+  The choice is cached and cleared only when a transform it was built from changes.
+- **Motion.** With odometry (`add_odometry`, or TF `odom_frame -> base_frame`), the depth
+  frame's points are moved from the camera's stamp to the scan's stamp (base at t_camera
+  -> odom -> base at t_scan), and a rotating LiDAR's beams (beam i at stamp + i *
+  time_increment) are de-skewed to the scan's stamp. Without odometry the stream fuses as
+  if the robot stood still and says so once.
+- **Malformed input** is the adapter's to detect (it decodes); it reports it with
+  `note_malformed`, and the stream keeps the counts.
+
+The stream has no clock of its own: every call that can release scans takes `now_ns`, the
+caller's clock (monotonic time in the node, log time in a bag, simulated time in the
+evaluation).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import TYPE_CHECKING, Generic, TypeVar
+
+import numpy as np
+
+from scanfuse.errors import InputError, ScanfuseError, TransformError
+from scanfuse.frames import StampedTransform, TransformStore, frame_name
+from scanfuse.fuse.deskew import deskew_scan
+from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
+from scanfuse.pipeline import FusionPipeline
+from scanfuse.transforms import Extrinsics, Transform
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    import numpy.typing as npt
+
+    from scanfuse.camera import CameraModel
+    from scanfuse.config import FusionConfig
+    from scanfuse.pipeline import StageTimings
+    from scanfuse.scan import Scan
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar('T')
+
+NANOSECONDS = 1_000_000_000
+# Frames kept for pairing: at 30 Hz and max_time_offset 0.1 s about 7 are ever useful.
+MAX_FRAMES = 16
+# Beams of a sweep whose motion is found from odometry; the rest are interpolated.
+DESKEW_SAMPLES = 9
+
+
+def seconds_to_ns(seconds: float) -> int:
+    return round(seconds * NANOSECONDS)
+
+
+class Passed(str, Enum):
+    """Why a scan left without the camera."""
+
+    NO_CAMERA_INFO = 'no CameraInfo yet'
+    CAMERA_SILENT = 'camera silent'
+    NO_FRAME_NEAR = 'no depth frame within max_time_offset'
+    NO_EXTRINSICS = 'TF does not relate the sensors to base_frame'
+    NO_MOTION = 'odometry does not cover the pair'
+    FUSION_FAILED = 'fusion failed'
+
+
+class Compensation(str, Enum):
+    """How the depth frame was brought to the scan's stamp."""
+
+    OFF = 'off (motion_compensation is false)'
+    NO_ODOMETRY = 'none (no odometry)'
+    COMPENSATED = 'compensated through odometry'
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    """A depth image (uint16 mm or float32 m) with its stamp, frame and camera."""
+
+    stamp_ns: int
+    depth: npt.NDArray[np.generic]
+    camera: CameraModel
+    frame_id: str = ''
+
+    @property
+    def optical_frame(self) -> str:
+        return frame_name(self.frame_id or self.camera.frame_id)
+
+
+@dataclass(frozen=True)
+class StreamOutput(Generic[T]):
+    """One scan leaving the stream, in arrival order.
+
+    `fused` None: publish the LiDAR scan unchanged (`token` is the adapter's, e.g. its
+    bytes). `lidar` is the LiDAR scan used (de-skewed when `deskewed`).
+    """
+
+    token: T
+    lidar: Scan
+    fused: Scan | None
+    depth_scan: Scan | None
+    arrived_ns: int
+    passed: Passed | None = None
+    depth_stamp_ns: int | None = None
+    compensation: Compensation = Compensation.NO_ODOMETRY
+    deskewed: bool = False
+    timings: StageTimings | None = None
+
+    @property
+    def with_camera(self) -> bool:
+        return self.passed is None
+
+
+@dataclass
+class StreamCounts:
+    """What the stream has seen and done since it was made."""
+
+    scans: int = 0
+    depth_frames: int = 0
+    fused: int = 0
+    compensated: int = 0
+    deskewed: int = 0
+    passed: dict[Passed, int] = field(default_factory=dict)
+    malformed: dict[str, int] = field(default_factory=dict)
+    peak_frames: int = 0
+
+    @property
+    def passed_through(self) -> int:
+        return sum(self.passed.values())
+
+
+@dataclass
+class _Pending(Generic[T]):
+    scan: Scan
+    token: T
+    arrived_ns: int
+    deadline_ns: float
+
+
+@dataclass(frozen=True)
+class ExtrinsicsChoice:
+    """The extrinsics used for a pair of sensor frames and where they came from."""
+
+    extrinsics: Extrinsics | None  # None: refused (see `source`)
+    source: str
+    frames: frozenset[str] = frozenset()  # TF child frames it was built from
+
+
+class FusionStream(Generic[T]):
+    """Pairs, compensates and fuses; see the module docstring for every rule."""
+
+    def __init__(
+        self, config: FusionConfig, *, pair_wait: float = 0.0, release_when_silent: bool = True
+    ) -> None:
+        """`pair_wait`: seconds a scan waits for a frame after it. `release_when_silent`:
+        a silent camera ends the wait at once (live); a recording, where a late frame may
+        still come, waits the whole `pair_wait`."""
+        if not pair_wait >= 0.0:
+            msg = f'pair_wait must be >= 0 s (math.inf: wait for the next frame), got {pair_wait}'
+            raise InputError(msg)
+        self.pair_wait_ns: float = pair_wait * NANOSECONDS
+        self.release_when_silent = release_when_silent
+        self.tf = TransformStore()
+        self.counts = StreamCounts()
+        self.camera: CameraModel | None = None
+        self._frames: deque[DepthFrame] = deque(maxlen=MAX_FRAMES)
+        self._pending: deque[_Pending[T]] = deque()
+        self._last_depth_ns: int | None = None
+        self._started_ns: int | None = None  # first scan or frame: the camera's grace starts
+        self._newest_scan_ns: int | None = None
+        self._warned: set[str] = set()
+        self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
+        self.extrinsics_source = 'parameters (no scan fused yet)'
+        self.odometry = OdometryHistory()
+        self.reconfigure(config)
+
+    # ------------------------------------------------------------ configuration
+
+    def reconfigure(self, config: FusionConfig) -> None:
+        """Use `config` from the next scan on (tables are rebuilt, odometry limits reset)."""
+        self.config = config
+        self.pipeline = FusionPipeline(config)
+        self._parameters = Extrinsics.from_config(config)
+        self._max_offset_ns = seconds_to_ns(config.max_time_offset)
+        self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
+        # Odometry that has arrived stays; only its extrapolation limit follows the config.
+        self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
+        self._extrinsics.clear()
+
+    # ------------------------------------------------------------ inputs
+
+    def add_camera_info(self, camera: CameraModel) -> None:
+        """A (new) calibration: frames of the old one are dropped."""
+        if camera != self.camera:
+            self.camera = camera
+            self._frames.clear()
+
+    def add_depth(
+        self, stamp_ns: int, depth: npt.NDArray[np.generic], now_ns: int, frame_id: str = ''
+    ) -> list[StreamOutput[T]]:
+        """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`."""
+        if self.camera is None:
+            self._warn_once(
+                'depth before camera info',
+                f'depth images before any CameraInfo on {self.config.camera_info_topic} '
+                'are dropped',
+            )
+            return self._release(now_ns)
+        try:
+            self.camera.check_depth(depth)
+        except ScanfuseError as err:
+            self.note_malformed('depth image', err)
+            return self._release(now_ns)
+        self._last_depth_ns = now_ns
+        if self._started_ns is None:
+            self._started_ns = now_ns
+        self.counts.depth_frames += 1
+        self._frames.append(DepthFrame(stamp_ns, depth, self.camera, frame_id))
+        self.counts.peak_frames = max(self.counts.peak_frames, len(self._frames))
+        return self._release(now_ns)
+
+    def add_scan(self, scan: Scan, token: T, now_ns: int) -> list[StreamOutput[T]]:
+        """A LiDAR scan arrived at `now_ns`; `token` comes back with its output."""
+        self.counts.scans += 1
+        if self._started_ns is None:
+            self._started_ns = now_ns
+        if self._newest_scan_ns is not None and scan.stamp_ns < self._newest_scan_ns:
+            self._warn_once(
+                'scan stamps backwards',
+                f'LiDAR scan stamps went backwards on {self.config.scan_topic} '
+                f'({(self._newest_scan_ns - scan.stamp_ns) / 1e9:.3f} s): each is still fused '
+                'with the frame nearest its own stamp, in arrival order',
+            )
+        self._newest_scan_ns = max(scan.stamp_ns, self._newest_scan_ns or scan.stamp_ns)
+        self._pending.append(_Pending(scan, token, now_ns, now_ns + self.pair_wait_ns))
+        return self._release(now_ns)
+
+    def add_odometry(self, stamp_ns: int, pose: PlanarPose) -> None:
+        """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF)."""
+        before = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
+        self.odometry.add(stamp_ns, pose)
+        after = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
+        for kind, old, new in zip(
+            ('jump or gap', 'non-finite', 'out of order'), before, after, strict=True
+        ):
+            if new > old:
+                self._warn_once(
+                    f'odometry {kind}',
+                    f'odometry {kind} at {stamp_ns / 1e9:.3f} s: no motion is compensated across '
+                    'it (further ones are only counted)',
+                )
+
+    def add_transforms(
+        self, transforms: Iterable[StampedTransform], *, static: bool, odometry: bool = True
+    ) -> None:
+        """TF: mounting poses, and `odom_frame -> base_frame` as odometry.
+
+        `odometry=False` skips odometry transforms altogether (a pass over a whole recording
+        for its mounting poses, before its messages are fed in order).
+        """
+        odom, base = frame_name(self.config.odom_frame), frame_name(self.config.base_frame)
+        mounting = []
+        for transform in transforms:
+            if not static and transform.parent == odom and transform.child == base:
+                if odometry:
+                    self.add_odometry(transform.stamp_ns, _planar(transform))
+            else:
+                mounting.append(transform)
+        try:
+            changed = self.tf.add_all(mounting, static=static)
+        except TransformError as err:
+            self.note_malformed('tf', err)
+            return
+        if changed:
+            stale = [
+                key
+                for key, choice in self._extrinsics.items()
+                if choice.frames & changed or not choice.frames
+            ]
+            for key in stale:
+                del self._extrinsics[key]
+
+    def tick(self, now_ns: int) -> list[StreamOutput[T]]:
+        """Scans whose wait is over by `now_ns`."""
+        return self._release(now_ns)
+
+    def finish(self) -> list[StreamOutput[T]]:
+        """Every scan still waiting (end of a recording), fused with what has arrived."""
+        out = []
+        while self._pending:
+            pending = self._pending.popleft()
+            out.append(self._resolve(pending))
+        return out
+
+    def next_deadline_ns(self) -> float | None:
+        """When the oldest waiting scan is released at the latest (caller's clock)."""
+        return self._pending[0].deadline_ns if self._pending else None
+
+    def note_malformed(self, kind: str, err: Exception) -> None:
+        """An input the adapter could not decode (or the stream could not use): counted."""
+        count = self.counts.malformed.get(kind, 0) + 1
+        self.counts.malformed[kind] = count
+        if count == 1:
+            logger.warning('dropped a malformed %s (further ones are only counted): %s', kind, err)
+
+    # ------------------------------------------------------------ state
+
+    def camera_alive(self, now_ns: int) -> bool:
+        """A depth frame arrived within camera_timeout (at start-up: the stream began then)."""
+        last = self._last_depth_ns if self._last_depth_ns is not None else self._started_ns
+        return last is not None and now_ns - last <= self._camera_timeout_ns
+
+    def camera_age_s(self, now_ns: int) -> float:
+        return math.inf if self._last_depth_ns is None else (now_ns - self._last_depth_ns) / 1e9
+
+    @property
+    def waiting(self) -> int:
+        return len(self._pending)
+
+    # ------------------------------------------------------------ pairing
+
+    def _release(self, now_ns: int) -> list[StreamOutput[T]]:
+        out = []
+        while self._pending and self._ready(self._pending[0], now_ns):
+            out.append(self._resolve(self._pending.popleft()))
+        self._prune_frames()
+        return out
+
+    def _ready(self, pending: _Pending[T], now_ns: int) -> bool:
+        if self.camera is None:
+            return True
+        if self.release_when_silent and not self.camera_alive(now_ns):
+            return True
+        if self._frames and self._frames[-1].stamp_ns >= pending.scan.stamp_ns:
+            return True
+        return now_ns >= pending.deadline_ns
+
+    def _prune_frames(self) -> None:
+        """Frames no waiting or future scan can pair with (scans come in stamp order)."""
+        if self._newest_scan_ns is None:
+            return
+        oldest = self._pending[0].scan.stamp_ns if self._pending else self._newest_scan_ns
+        while len(self._frames) > 1 and self._frames[0].stamp_ns + self._max_offset_ns < oldest:
+            self._frames.popleft()
+
+    def _nearest_frame(self, stamp_ns: int) -> DepthFrame | None:
+        best: DepthFrame | None = None
+        best_offset = self._max_offset_ns + 1
+        for frame in self._frames:
+            offset = abs(frame.stamp_ns - stamp_ns)
+            if offset < best_offset:  # of two equally near, the earlier one (frames ascend)
+                best, best_offset = frame, offset
+        return best
+
+    # ------------------------------------------------------------ one scan
+
+    def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
+        scan = pending.scan
+        lidar, deskewed = self._deskew(scan)
+        if self.camera is None:
+            return self._pass(pending, lidar, deskewed, Passed.NO_CAMERA_INFO)
+        frame = self._nearest_frame(scan.stamp_ns)
+        if frame is None:
+            silent = (
+                self._last_depth_ns is None
+                or pending.arrived_ns - self._last_depth_ns > self._camera_timeout_ns
+            )
+            return self._pass(
+                pending, lidar, deskewed, Passed.CAMERA_SILENT if silent else Passed.NO_FRAME_NEAR
+            )
+        choice = self.extrinsics_for(scan.frame_id, frame.optical_frame)
+        if choice.extrinsics is None:
+            self._warn_once('extrinsics', choice.source)
+            return self._pass(pending, lidar, deskewed, Passed.NO_EXTRINSICS)
+        motion, compensation = self._motion(
+            frame.stamp_ns, scan.stamp_ns, choice.extrinsics.base_to_laser
+        )
+        if motion is None:
+            return self._pass(pending, lidar, deskewed, Passed.NO_MOTION)
+        try:
+            result = self.pipeline.fuse(lidar, frame.depth, frame.camera, choice.extrinsics, motion)
+        except ScanfuseError as err:
+            self.note_malformed('fusion', err)
+            return self._pass(pending, lidar, deskewed, Passed.FUSION_FAILED)
+        self.counts.fused += 1
+        if compensation is Compensation.COMPENSATED:
+            self.counts.compensated += 1
+        return StreamOutput(
+            token=pending.token,
+            lidar=lidar,
+            fused=result.fused,
+            depth_scan=result.depth_scan,
+            arrived_ns=pending.arrived_ns,
+            depth_stamp_ns=frame.stamp_ns,
+            compensation=compensation,
+            deskewed=deskewed,
+            timings=result.timings,
+        )
+
+    def _pass(
+        self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
+    ) -> StreamOutput[T]:
+        self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        return StreamOutput(
+            token=pending.token,
+            lidar=lidar,
+            fused=lidar if deskewed else None,
+            depth_scan=None,
+            arrived_ns=pending.arrived_ns,
+            passed=reason,
+            deskewed=deskewed,
+        )
+
+    # ------------------------------------------------------------ extrinsics
+
+    def extrinsics_for(self, scan_frame: str, camera_frame: str) -> ExtrinsicsChoice:
+        """The extrinsics of this LiDAR and camera frame, from TF or the parameters."""
+        key = (frame_name(scan_frame), frame_name(camera_frame))
+        choice = self._extrinsics.get(key)
+        if choice is None:
+            choice = self._extrinsics[key] = self._choose_extrinsics(*key)
+        self.extrinsics_source = choice.source
+        return choice
+
+    def _choose_extrinsics(self, laser: str, camera: str) -> ExtrinsicsChoice:
+        if not self.config.use_tf:
+            return ExtrinsicsChoice(self._parameters, 'parameters (use_tf is false)')
+        known = set(self.tf.frames)
+        if laser not in known and camera not in known:
+            return ExtrinsicsChoice(self._parameters, 'parameters (TF has neither sensor frame)')
+        base = frame_name(self.config.base_frame)
+        try:
+            extrinsics = Extrinsics(
+                base_to_laser=Transform.from_matrix(self.tf.lookup(base, laser)),
+                base_to_camera_optical=Transform.from_matrix(self.tf.lookup(base, camera)),
+            )
+        except (TransformError, ScanfuseError) as err:
+            return ExtrinsicsChoice(None, self._refusal(base, laser, camera, err))
+        frames = frozenset(self.tf.chain(base, laser) | self.tf.chain(base, camera))
+        return ExtrinsicsChoice(extrinsics, f'TF ({base} -> {laser}, {camera})', frames)
+
+    def _refusal(self, base: str, laser: str, camera: str, err: Exception) -> str:
+        roots = self.tf.roots()
+        sensor_roots = sorted(
+            {self.tf.root_of(f) for f in (laser, camera) if f in set(self.tf.frames)}
+        )
+        suggestion = next((r for r in sensor_roots if r != base), None)
+        hint = f'; base_frame {suggestion!r}?' if suggestion else ''
+        return (
+            f'TF does not connect base_frame {base!r} to the LiDAR frame {laser!r} and the camera '
+            f'frame {camera!r} (TF roots: {", ".join(roots) or "none"}{hint}): set base_frame to '
+            f'the robot frame whose z = 0 is the floor, publish the missing transforms, or set '
+            f'use_tf: false to use the mounting parameters ({err})'
+        )
+
+    def base_to_laser(self, scan_frame: str) -> Transform:
+        """The LiDAR's mounting: TF when it knows it, else the parameters."""
+        base, laser = frame_name(self.config.base_frame), frame_name(scan_frame)
+        if self.config.use_tf and self.tf.can_transform(base, laser):
+            return Transform.from_matrix(self.tf.lookup(base, laser))
+        return self._parameters.base_to_laser
+
+    # ------------------------------------------------------------ motion
+
+    def _motion(
+        self, depth_ns: int, scan_ns: int, base_to_laser: Transform
+    ) -> tuple[PlanarMotion | None, Compensation]:
+        if not self.config.motion_compensation:
+            return IDENTITY_MOTION, Compensation.OFF
+        if not len(self.odometry):
+            self._note_once(
+                'no odometry',
+                f'no odometry (on {self.config.odom_topic} or TF {self.config.odom_frame} -> '
+                f'{self.config.base_frame}): fusing without motion compensation',
+            )
+            return IDENTITY_MOTION, Compensation.NO_ODOMETRY
+        move, how = self.odometry.move_between(depth_ns, scan_ns)
+        if move is None:
+            self._warn_once(
+                f'motion {how.value}',
+                f'depth frame at {depth_ns / 1e9:.3f} s and scan at {scan_ns / 1e9:.3f} s: '
+                f'{how.value}; the LiDAR passes through (further ones are only counted)',
+            )
+            return None, Compensation.NO_ODOMETRY
+        return PlanarMotion.of_base_move(move, base_to_laser), Compensation.COMPENSATED
+
+    def _deskew(self, scan: Scan) -> tuple[Scan, bool]:
+        """The scan with every beam at the scan's stamp, when odometry covers the sweep."""
+        if (
+            not self.config.deskew
+            or not self.config.motion_compensation
+            or scan.time_increment == 0.0
+            or len(scan) < 2
+            or not len(self.odometry)
+        ):
+            return scan, False
+        sweep_ns = scan.time_increment * (len(scan) - 1) * NANOSECONDS
+        if not math.isfinite(sweep_ns) or abs(sweep_ns) > NANOSECONDS:
+            self._warn_once(
+                'time_increment',
+                f'LiDAR time_increment {scan.time_increment} s makes a sweep of '
+                f'{sweep_ns / 1e9:.3f} s: not de-skewing',
+            )
+            return scan, False
+        base_to_laser = self.base_to_laser(scan.frame_id)
+        samples = np.linspace(0, len(scan) - 1, DESKEW_SAMPLES)
+        angle, tx, ty = [], [], []
+        for beam in samples:
+            beam_ns = scan.stamp_ns + round(float(beam) * scan.time_increment * NANOSECONDS)
+            move, _ = self.odometry.move_between(beam_ns, scan.stamp_ns)
+            if move is None:
+                return scan, False
+            motion = PlanarMotion.of_base_move(move, base_to_laser)
+            angle.append(motion.angle)
+            tx.append(motion.tx)
+            ty.append(motion.ty)
+        beams = np.arange(len(scan), dtype=np.float64)
+        deskewed = deskew_scan(
+            scan,
+            np.interp(beams, samples, np.unwrap(angle)),
+            np.interp(beams, samples, tx),
+            np.interp(beams, samples, ty),
+        )
+        self.counts.deskewed += 1
+        return deskewed, True
+
+    # ------------------------------------------------------------ logging
+
+    def _note_once(self, key: str, message: str) -> None:
+        """Said once, at DEBUG: a normal way to run (a robot without odometry), not a fault;
+        reports and /diagnostics count it."""
+        if key not in self._warned:
+            self._warned.add(key)
+            logger.debug(message)
+
+    def _warn_once(self, key: str, message: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            logger.warning(message)
+
+
+def _planar(transform: StampedTransform) -> PlanarPose:
+    x, y, z, w = transform.rotation
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return PlanarPose(transform.translation[0], transform.translation[1], yaw)

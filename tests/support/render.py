@@ -1,0 +1,113 @@
+"""Analytic depth images and LiDAR scans of boxes and posts on a floor, from any pose.
+
+Expected values of the geometry tests come from these closed forms (a ray meets a plane or
+a circle), independent of the code under test.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+
+if TYPE_CHECKING:
+    from scanfuse.camera import CameraModel
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box standing on the floor (world frame, metres)."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+    height: float
+
+
+def camera_in_world(
+    x: float, y: float, yaw: float, *, height: float, pitch: float, forward: float = 0.0
+) -> Transform:
+    """World pose of the optical frame of a camera `forward` m ahead of a base at (x, y, yaw)."""
+    base = Transform.from_rpy(0.0, 0.0, yaw, (x, y, 0.0))
+    body = Transform.from_rpy(0.0, pitch, 0.0, (forward, 0.0, height))
+    return base @ body @ BODY_TO_OPTICAL
+
+
+def depth_image(
+    camera: CameraModel, world_to_optical: Transform, boxes: list[Box], *, floor: bool = True
+) -> np.ndarray:
+    """16UC1 millimetres of the floor (z = 0) and `boxes` seen by `camera`; 0 = no return."""
+    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
+    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1)  # optical depth z = 1
+    direction = rays @ world_to_optical.rotation_matrix.T
+    origin = np.asarray(world_to_optical.translation)
+    depth = np.full(x_n.shape, np.inf)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        if floor:
+            t = -origin[2] / direction[..., 2]
+            depth = np.where(t > 0, np.minimum(depth, t), depth)
+        for box in boxes:
+            faces = (
+                (0, box.x_min),
+                (0, box.x_max),
+                (1, box.y_min),
+                (1, box.y_max),
+                (2, box.height),
+            )
+            for axis, value in faces:
+                t = (value - origin[axis]) / direction[..., axis]
+                hit = origin + t[..., None] * direction
+                inside = (
+                    (hit[..., 0] >= box.x_min - 1e-9)
+                    & (hit[..., 0] <= box.x_max + 1e-9)
+                    & (hit[..., 1] >= box.y_min - 1e-9)
+                    & (hit[..., 1] <= box.y_max + 1e-9)
+                    & (hit[..., 2] >= -1e-9)
+                    & (hit[..., 2] <= box.height + 1e-9)
+                )
+                depth = np.where((t > 0) & inside & (t < depth), t, depth)
+    millimetres = np.where(np.isfinite(depth), np.round(depth * 1000.0), 0.0)
+    return np.clip(millimetres, 0, 65535).astype(np.uint16)
+
+
+def ray_to_circle(
+    origin: tuple[float, float], angle: np.ndarray, centre: tuple[float, float], radius: float
+) -> np.ndarray:
+    """Distance along rays from `origin` at `angle` to a circle; +Inf where they miss it."""
+    dx, dy = np.cos(angle), np.sin(angle)
+    ox, oy = origin[0] - centre[0], origin[1] - centre[1]
+    b = ox * dx + oy * dy
+    c = ox * ox + oy * oy - radius * radius
+    disc = b * b - c
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    return np.where((disc >= 0) & (t > 0), t, np.inf)
+
+
+def turning_sweep(
+    count: int,
+    sweep_time: float,
+    omega: float,
+    centre: tuple[float, float],
+    radius: float,
+    *,
+    range_max: float,
+) -> tuple[np.ndarray, float, float]:
+    """Ranges of a 360-degree LiDAR at the origin turning at `omega` while it sweeps.
+
+    Beam i (angle -pi + i * 2 pi / count in the sensor frame) is measured at i * dt, when the
+    sensor's yaw is omega * i * dt (yaw 0 at the stamp). Returns (ranges, angle_min,
+    angle_increment).
+    """
+    increment = 2.0 * math.pi / count
+    beams = np.arange(count)
+    angle_min = -math.pi
+    sensor_angle = angle_min + beams * increment
+    world_angle = sensor_angle + omega * beams * (sweep_time / count)
+    ranges = ray_to_circle((0.0, 0.0), world_angle, centre, radius)
+    ranges[ranges > range_max] = np.inf
+    return ranges.astype(np.float32), angle_min, increment
