@@ -28,13 +28,12 @@ from scanfuse.distortion import undistort_normalized
 from scanfuse.errors import ConfigError, InputError, MessageError, TransformError
 from scanfuse.ros import messages
 from scanfuse.ros.messages import StampedTransform
-from scanfuse.ros.synthetic import Scene
 from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics, Transform
+from tests.support.reference import row_scan_loop
+from tests.support.synthetic import Scene
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / 'benchmarks'))
-from reference import row_scan_loop  # noqa: E402
 
 SCENE = Scene(width=160, height=120, focal=100.0, readings=360)
 
