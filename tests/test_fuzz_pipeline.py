@@ -1,4 +1,4 @@
-"""Fuzzing `FusionPipeline.fuse` with hostile input (issue 11, "Done when").
+"""Fuzzing `FusionPipeline.fuse` and `FusionStream` with hostile input (issue 11, "Done when").
 
 Random configurations, cameras (extreme intrinsics, NaN distortion), depth images
 (random shapes and dtypes, NaN/Inf floods), LiDAR scans (random grids and limits,
@@ -9,6 +9,10 @@ driver error values), mountings and motions. Every call must end in a result or 
 - it is never farther than a real LiDAR reading (finite, positive, inside the scan's
   own limits), and the LiDAR's -Inf (too close) stays;
 - every finite value lies inside the published [range_min, range_max].
+
+The stream gets random sequences of the same material (CameraInfo, depth frames, scans,
+odometry, TF, clock ticks): it never raises, every scan leaves exactly once and in
+arrival order, and each fused scan has the properties above.
 
 The examples run in a child interpreter: a segfault in the compiled kernel fails this
 test with the child's output instead of killing pytest. Derandomized, so every run
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 import subprocess
 import sys
 from collections import Counter
@@ -35,12 +40,17 @@ from hypothesis.extra import numpy as hnp
 
 from scanfuse import FusionConfig, FusionPipeline, Scan, ScanfuseError
 from scanfuse.camera import CameraModel
+from scanfuse.frames import StampedTransform
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion, PlanarPose
+from scanfuse.stream import FusionStream
 from scanfuse.transforms import Extrinsics, Transform
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = int(os.environ.get('SCANFUSE_FUZZ_EXAMPLES', '1000'))
+STREAM_EXAMPLES = max(EXAMPLES // 5, 1)
 SEED = int(os.environ.get('SCANFUSE_FUZZ_SEED', '0'))
+# A file that holds the case being fused (pickled), to replay the one that crashed the child.
+TRACE = os.environ.get('SCANFUSE_FUZZ_TRACE')
 
 HOSTILE_FLOATS = [math.nan, math.inf, -math.inf, 0.0, -1.0, 1e-300, 1e30, 1e39, -1e39, 1e300]
 # Outcomes in the child: 'fused', or the class and first words of the error.
@@ -268,6 +278,8 @@ def fuzz_fuse(case: dict[str, object]) -> None:
     except ScanfuseError as err:
         OUTCOMES[f'refused on entry: {type(err).__name__}: {" ".join(str(err).split()[:5])}'] += 1
         return
+    if TRACE:
+        Path(TRACE).write_bytes(pickle.dumps(case))
     try:
         result = pipeline.fuse(lidar, case['depth'], camera, mounting, case['motion'])  # type: ignore[arg-type]
     except ScanfuseError as err:
@@ -278,12 +290,106 @@ def fuzz_fuse(case: dict[str, object]) -> None:
     OUTCOMES['fused'] += 1
 
 
+STAMP_0 = 1_700_000_000 * 1_000_000_000
+MS = 1_000_000
+
+
+@st.composite
+def stream_events(draw: st.DrawFn) -> list[tuple[object, ...]]:
+    """A sequence of ('camera' | 'depth' | 'scan' | 'odometry' | 'tf' | 'tick', ...) events.
+
+    Stamps fall on a 50 ms grid around one instant so that frames and scans can pair.
+    """
+    camera = draw(cameras())
+    shape = (int(camera['height']), int(camera['width']))  # type: ignore[call-overload]
+    events: list[tuple[object, ...]] = [('camera', camera)]
+    for _ in range(draw(st.integers(1, 12))):
+        stamp = STAMP_0 + 50 * MS * draw(st.integers(0, 5))
+        kind = draw(st.sampled_from(['depth'] * 3 + ['scan'] * 3 + ['odometry', 'tf', 'tick']))
+        if kind == 'depth':
+            events.append(('depth', stamp, draw(depth_images(*shape))))
+        elif kind == 'scan':
+            events.append(('scan', stamp, draw(lidar_scans())))
+        elif kind == 'odometry':
+            pose = [_sometimes_hostile(draw, st.floats(-5.0, 5.0)) for _ in range(3)]
+            events.append(('odometry', stamp, *pose))
+        elif kind == 'tf':
+            mounting = draw(mountings()) or ((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.3)) * 2
+            child = draw(st.sampled_from(['laser', 'camera_optical', 'base_link', 'odom']))
+            parent = draw(st.sampled_from(['base_link', 'odom', 'laser']))
+            events.append(
+                ('tf', stamp, parent, child, mounting[0], mounting[1], draw(st.booleans()))
+            )
+        else:
+            events.append(('tick',))
+        if draw(st.sampled_from(_ONCE_IN_40)):
+            events.append(('camera', draw(cameras())))  # a new calibration mid-stream
+    return events
+
+
+@seed(SEED)
+@settings(
+    max_examples=STREAM_EXAMPLES,
+    deadline=None,
+    database=None,
+    derandomize=SEED == 0,
+    suppress_health_check=list(HealthCheck),
+)
+@given(configs(), st.sampled_from([0.0, 0.05, math.inf]), stream_events())
+def fuzz_stream(
+    values: dict[str, object], pair_wait: float, events: list[tuple[object, ...]]
+) -> None:
+    """Runs in the child: the stream never raises, and each scan leaves once, in order."""
+    try:
+        config = FusionConfig.from_dict(values)
+    except ScanfuseError:
+        OUTCOMES['stream: config refused'] += 1
+        return
+    stream: FusionStream[int] = FusionStream(config, pair_wait=pair_wait)
+    outputs = []
+    scans = 0
+    now = STAMP_0
+    for event in events:
+        now += 20 * MS
+        kind = event[0]
+        try:
+            if kind == 'camera':
+                stream.add_camera_info(CameraModel(**event[1]))  # type: ignore[arg-type]
+            elif kind == 'depth':
+                outputs += stream.add_depth(event[1], event[2], now, 'camera_optical')  # type: ignore[arg-type]
+            elif kind == 'scan':
+                scan = Scan(**{**event[2], 'stamp_ns': event[1]})  # type: ignore[dict-item]
+                outputs += stream.add_scan(scan, scans, now)
+                scans += 1
+            elif kind == 'odometry':
+                stream.add_odometry(event[1], PlanarPose(*event[2:]))  # type: ignore[arg-type]
+            elif kind == 'tf':
+                _, stamp, parent, child, rotation, translation, static = event
+                moved = StampedTransform(parent, child, translation, rotation, stamp)  # type: ignore[arg-type]
+                stream.add_transforms([moved], static=static)  # type: ignore[arg-type]
+            else:
+                outputs += stream.tick(now)
+        except ScanfuseError:
+            # An input refused on entry, as the adapter's decoding would refuse it.
+            continue
+    outputs += stream.finish()
+    assert [output.token for output in outputs] == list(range(scans)), 'lost or reordered'
+    for output in outputs:
+        if output.fused is not None:
+            check_merge_properties(output.lidar, output.fused)
+    OUTCOMES['stream: scans fused'] += sum(o.passed is None for o in outputs)
+    for output in outputs:
+        if output.passed is not None:
+            OUTCOMES[f'stream: passed through, {output.passed.value}'] += 1
+
+
 def run_child() -> None:
     """The child's entry point: fuzz, then print the outcomes, 'fused N' last."""
+    fuzz_stream()
     fuzz_fuse()
     for outcome, count in OUTCOMES.most_common():
         print(f'{count:5d}  {outcome}')
-    print('fused', OUTCOMES['fused'])
+    print('fused', OUTCOMES['fused'], OUTCOMES['stream: scans fused'])
 
 
 def test_fuse_gives_a_result_or_a_scanfuse_error_and_keeps_the_merge_properties():
@@ -299,7 +405,8 @@ def test_fuse_gives_a_result_or_a_scanfuse_error_and_keeps_the_merge_properties(
     )
     report = f'exit {done.returncode}\n{done.stdout[-20000:]}\n{done.stderr[-20000:]}'
     assert done.returncode == 0, report
-    last = done.stdout.strip().splitlines()[-1]
-    assert last.startswith('fused '), report
+    last = done.stdout.strip().splitlines()[-1].split()
+    assert last[0] == 'fused', report
     # A fifth at least must get through to a result, or the properties were hardly checked.
-    assert int(last.split()[1]) >= EXAMPLES // 5, report
+    assert int(last[1]) >= EXAMPLES // 5, report
+    assert int(last[2]) >= STREAM_EXAMPLES // 10, report

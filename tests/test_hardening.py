@@ -184,6 +184,39 @@ def test_fusing_with_a_float32_overflowing_mounting_is_an_error_not_a_crash():
     ]
 
 
+def test_a_corrupt_motion_is_refused_before_the_kernel_bins_its_points():
+    # Found by the fuzz test: PlanarMotion(ty=nan) sent every moved point to a NaN slot
+    # and the kernel read out of bounds (a segfault, 1 run in 3 of that seed).
+    out = run_isolated(
+        """
+        import math
+        from scanfuse import FusionPipeline, ScanfuseError
+        from scanfuse.motion import PlanarMotion
+        from tests.test_hardening import SCENE, lidar_scan, scene_config
+        for motion in (
+            PlanarMotion(ty=math.nan),
+            PlanarMotion(tx=1e39),
+            PlanarMotion(cos=math.inf),
+            PlanarMotion(cos=0.0, sin=0.0),
+            PlanarMotion(tx=150.0),
+        ):
+            try:
+                FusionPipeline(scene_config()).fuse(
+                    lidar_scan(), SCENE.depth_mm(), SCENE.camera, None, motion
+                )
+                print('fused')
+            except ScanfuseError as err:
+                print(type(err).__name__, err)
+        """
+    )
+    lines = out.splitlines()
+    expected = ['must be finite', 'more than 100 m', 'must be finite', 'is not a rotation', '100 m']
+    assert len(lines) == len(expected)
+    for line, phrase in zip(lines, expected, strict=True):
+        assert line.startswith('InputError motion PlanarMotion(')
+        assert phrase in line
+
+
 # --- 2. bounded caches, tolerant grids, malformed grids and distortion ------------------------
 
 

@@ -7,6 +7,7 @@ call `FusionPipeline.fuse`; there is no second implementation of the fusion.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Generic, TypeVar
@@ -15,10 +16,11 @@ from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.convert.row import row_scan
+from scanfuse.errors import InputError
 from scanfuse.fuse.merge import merge_scans
 from scanfuse.fuse.resample import Plan, apply_plan, build_plan
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
-from scanfuse.transforms import Extrinsics
+from scanfuse.transforms import MAX_MOUNTING_OFFSET, Extrinsics
 
 if TYPE_CHECKING:
     import numpy as np
@@ -37,6 +39,9 @@ PLAN_CACHE_SIZE = 8
 # (rplidar_ros); 1 % of a slot (87 microradians at 720 readings per turn) moves the edge
 # where a depth point is binned far less than any LiDAR's beam is wide.
 GRID_TOLERANCE = 0.01
+
+# cos^2 + sin^2 of a motion's rotation may differ from 1 by float rounding, not by more.
+MOTION_TOLERANCE = 1e-6
 
 Key = TypeVar('Key')
 Value = TypeVar('Value')
@@ -73,6 +78,28 @@ class GridCache(Generic[Key, Value]):
     def put(self, key: Key, grids: tuple[AngleGrid, ...], value: Value) -> None:
         self._entries.append((key, grids, value))
         del self._entries[: -self.size]
+
+
+def check_motion(motion: PlanarMotion) -> None:
+    """InputError unless `motion` is a finite rotation and a plausible translation.
+
+    The obstacle kernel bins every moved point by its angle: a NaN or float32-overflowing
+    motion would give every point a meaningless slot. Between a depth frame and a scan
+    (at most max_time_offset, 10 s, apart) no robot moves 100 m.
+    """
+    values = (motion.cos, motion.sin, motion.tx, motion.ty)
+    if not all(math.isfinite(value) for value in values):
+        msg = f'motion {motion} must be finite; check the odometry it was found from'
+        raise InputError(msg)
+    if abs(motion.cos**2 + motion.sin**2 - 1.0) > MOTION_TOLERANCE:
+        msg = f'motion {motion} is not a rotation (cos^2 + sin^2 must be 1)'
+        raise InputError(msg)
+    if max(abs(motion.tx), abs(motion.ty)) > MAX_MOUNTING_OFFSET:
+        msg = (
+            f'motion {motion} moves the LiDAR more than {MAX_MOUNTING_OFFSET:g} m between '
+            'the depth frame and the scan; check the odometry and the stamps'
+        )
+        raise InputError(msg)
 
 
 @dataclass(frozen=True)
@@ -146,6 +173,8 @@ class FusionPipeline:
         camera, is turned by the motion's angle.
         """
         extrinsics = extrinsics or self._default_extrinsics
+        if not motion.is_identity:
+            check_motion(motion)
         start = time.perf_counter()
         if self.config.method is Method.OBSTACLE:
             depth_scan = self._projector(camera, extrinsics, lidar.grid).scan(depth, motion)
