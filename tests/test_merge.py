@@ -58,11 +58,51 @@ def test_too_close_wins_over_everything(pair):
 
 
 @given(scan_pairs())
-def test_merging_with_all_nan_returns_the_lidar_unchanged(pair):
+def test_merging_with_all_nan_returns_the_lidar_s_real_readings(pair):
     lidar, _ = pair
     nothing = lidar.with_ranges(np.full(len(lidar), np.nan, np.float32))
     fused = merge_scans(lidar, nothing)
-    np.testing.assert_array_equal(fused.ranges, lidar.ranges)
+    real = in_range(lidar) & (lidar.ranges > 0.0)
+    np.testing.assert_array_equal(fused.ranges[real], lidar.ranges[real])
+    infinite = np.isinf(lidar.ranges)
+    np.testing.assert_array_equal(fused.ranges[infinite], lidar.ranges[infinite])
+    # Everything else (NaN, a driver's 0, values past its own limits) is no information.
+    assert np.isnan(fused.ranges[~real & ~infinite]).all()
+
+
+@given(scan_pairs())
+def test_every_published_finite_value_is_a_real_reading_inside_the_published_limits(pair):
+    lidar, depth = pair
+    for first, second in ((lidar, depth), (depth, lidar)):
+        fused = merge_scans(first, second)
+        finite = np.isfinite(fused.ranges)
+        values = fused.ranges[finite]
+        assert np.all((values >= fused.range_min) & (values <= fused.range_max) & (values > 0))
+        # ... and it is one of the two sensors' readings inside that sensor's own limits.
+        own = ((values == first.ranges[finite]) & in_range(first)[finite]) | (
+            (values == second.ranges[finite]) & in_range(second)[finite]
+        )
+        assert own.all()
+
+
+def test_a_zero_under_a_published_range_min_of_zero_is_no_reading():
+    # A Hokuyo writes 0 for no return; with range_min 0 it used to pass as a 0 m obstacle.
+    lidar = Scan(0.0, 0.2, 0.1, 0.0, 5.6, np.array([0.0, 1.0, 0.0], np.float32))
+    depth = lidar.with_ranges(np.array([np.nan, np.nan, 2.5], np.float32), range_min=0.2)
+    fused = merge_scans(lidar, depth)
+    np.testing.assert_array_equal(fused.ranges, np.float32([np.nan, 1.0, 2.5]))
+    assert (fused.range_min, fused.range_max) == (0.0, 5.6)
+
+
+def test_values_below_range_min_become_nan_not_too_close():
+    # REP-117's -Inf is for a driver that says "too close"; 0.01 under range_min 0.02 is
+    # a Hokuyo error code, not a measurement, and must not put an obstacle on the robot.
+    lidar = Scan(0.0, 0.2, 0.1, 0.02, 5.6, np.array([0.01, -np.inf, 7.0], np.float32))
+    nothing = lidar.with_ranges(np.full(3, np.nan, np.float32))
+    fused = merge_scans(lidar, nothing)
+    assert np.isnan(fused.ranges[0])
+    assert fused.ranges[1] == -np.inf
+    assert np.isnan(fused.ranges[2])
 
 
 @given(scan_pairs())

@@ -103,12 +103,18 @@ def test_merge_invariants_with_obstacle_scan(case):
 
 @SETTINGS
 @given(cases())
-def test_all_nan_depth_returns_the_lidar_unchanged(case):
+def test_all_nan_depth_returns_the_lidar_s_real_readings(case):
     projector, lidar, _ = case
     nothing = np.full((CAMERA.height, CAMERA.width), np.nan, np.float32)
     depth_scan = projector.scan(nothing)
     assert np.isnan(depth_scan.ranges).all()
+    # Real readings (positive, inside the LiDAR's own limits) and +-Inf unchanged; a
+    # driver's error values are no information (NaN).
+    r = lidar.ranges
+    with np.errstate(invalid='ignore'):
+        kept = ((r > 0) & (r >= lidar.range_min) & (r <= lidar.range_max)) | np.isinf(r)
+    expected = np.where(kept, r, np.float32(np.nan))
     fused = merge_scans(lidar, depth_scan)
-    np.testing.assert_array_equal(fused.ranges, lidar.ranges)
+    np.testing.assert_array_equal(fused.ranges, expected)
     zeros = projector.scan(np.zeros((CAMERA.height, CAMERA.width), np.uint16))
-    np.testing.assert_array_equal(merge_scans(lidar, zeros).ranges, lidar.ranges)
+    np.testing.assert_array_equal(merge_scans(lidar, zeros).ranges, expected)

@@ -23,6 +23,10 @@ DEPTH_ENCODINGS: dict[str, np.dtype[np.uint16] | np.dtype[np.float32]] = {
     '32FC1': np.dtype(np.float32),
 }
 MILLIMETRE = 0.001
+# Largest pinhole ray slope |x/z| at an image corner: 89.994 degrees off the optical axis.
+# A CameraInfo past it (fx = 1e-300, cx = 1e30) is corrupt, and its rays would overflow
+# the float32 ray tables to Inf.
+MAX_RAY_SLOPE = 1.0e4
 
 
 def decode_depth(
@@ -127,6 +131,26 @@ class CameraModel:
             if not math.isfinite(getattr(self, name)):
                 msg = f'camera principal point {name} must be finite'
                 raise InputError(msg)
+        slope = max(
+            abs(self.cx) / self.fx,
+            abs(self.width - 1 - self.cx) / self.fx,
+            abs(self.cy) / self.fy,
+            abs(self.height - 1 - self.cy) / self.fy,
+        )
+        if not slope <= MAX_RAY_SLOPE:
+            msg = (
+                f'camera intrinsics fx={self.fx}, fy={self.fy}, cx={self.cx}, cy={self.cy} put '
+                f'an image corner {math.degrees(math.atan(slope)):.4f} degrees off the optical '
+                'axis, beyond any pinhole camera; publish the calibrated CameraInfo'
+            )
+            raise InputError(msg)
+        if not all(math.isfinite(value) for value in self.distortion):
+            # NaN would also make the model unequal to itself: a cache miss on every frame.
+            msg = (
+                f'camera distortion coefficients {self.distortion} must be finite; '
+                'publish the calibrated CameraInfo (D all zero for rectified depth)'
+            )
+            raise InputError(msg)
 
     @classmethod
     def from_intrinsics(

@@ -16,8 +16,32 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from scanfuse.errors import ConfigError
 from scanfuse.sources import SourceSet, sources_to_params, split_sources
+from scanfuse.transforms import MAX_MOUNTING_OFFSET  # metres, per axis, sensor to base frame
 
 NODE_NAME = 'scanfuse'
+
+# Physically plausible bounds, checked at every entry (parameter file, `-p`, with_changes).
+# A sensor mounted more than 100 m from its robot's base frame is a typo, and a finite float64
+# far beyond it (1e39) overflows the float32 arithmetic of the conversions.
+MAX_MOUNTING_ANGLE = 2.0 * math.pi  # radians: one full turn either way
+MAX_RANGE = 1000.0  # metres, depth camera range limits
+MAX_TIME_OFFSET = 10.0  # seconds: 10 s between a scan and an image is no longer one moment
+MAX_CAMERA_TIMEOUT = 60.0  # seconds
+MAX_OBSTACLE_MIN_POINTS = 64  # per slot and frame the kernel keeps this many nearest points
+
+
+def _metres(default: float, description: str, *, bound: float = MAX_MOUNTING_OFFSET) -> Any:
+    return Field(default, ge=-bound, le=bound, allow_inf_nan=False, description=description)
+
+
+def _radians(default: float, description: str) -> Any:
+    return Field(
+        default,
+        ge=-MAX_MOUNTING_ANGLE,
+        le=MAX_MOUNTING_ANGLE,
+        allow_inf_nan=False,
+        description=description,
+    )
 
 
 class Method(str, Enum):
@@ -55,32 +79,44 @@ class FusionConfig(BaseModel):
         description='row method: cut each slot where its line of sight meets the floor',
     )
     floor_margin: float = Field(
-        0.05, ge=0.0, description='metres kept short of the floor intersection by floor_guard'
+        0.05,
+        ge=0.0,
+        le=MAX_MOUNTING_OFFSET,
+        allow_inf_nan=False,
+        description='metres kept short of the floor intersection by floor_guard',
     )
-    range_min: float = Field(0.2, ge=0.0, description='depth camera minimum range, metres')
+    range_min: float = Field(
+        0.2,
+        ge=0.0,
+        le=MAX_RANGE,
+        allow_inf_nan=False,
+        description='depth camera minimum range, metres',
+    )
     range_max: float = Field(
         3.0,
         gt=0.0,
+        le=MAX_RANGE,
+        allow_inf_nan=False,
         description=(
             'depth camera maximum range used, metres; active-stereo noise grows with the '
             'square of the range and passes the 0.05 m + 2 % tolerance beyond about 3 m'
         ),
     )
-    min_obstacle_height: float = Field(
-        0.03, description='bottom of the collision slab above the floor, metres'
+    min_obstacle_height: float = _metres(
+        0.03, 'bottom of the collision slab above the floor, metres'
     )
-    max_obstacle_height: float = Field(
-        0.5, description='top of the collision slab above the floor, metres'
-    )
+    max_obstacle_height: float = _metres(0.5, 'top of the collision slab above the floor, metres')
     obstacle_min_points: int = Field(
         16,
         ge=1,
+        le=MAX_OBSTACLE_MIN_POINTS,
         description=(
             'obstacle method: per LiDAR slot, of this many nearest points in the slab the '
             'farthest within obstacle_cluster_spread * range^2 of the nearest is reported. '
             'More than 1 undoes the short bias of the nearest of many noisy depth pixels '
             '(about 2 sigma on a wall); 1 is the plain nearest point. 16 chosen by '
-            '`scanfuse evaluate` (false obstacles 8 % -> 0.5 %, recall 0.99 -> 0.97)'
+            '`scanfuse evaluate` (false obstacles 8 % -> 0.5 %, recall 0.99 -> 0.97). At most '
+            '64: the kernel keeps k points per slot per frame, and thousands stall it'
         ),
     )
     obstacle_cluster_spread: float = Field(
@@ -94,28 +130,30 @@ class FusionConfig(BaseModel):
             'by `scanfuse evaluate` for a RealSense D435 (sigma = 0.01 Z^2)'
         ),
     )
-    camera_x: float = Field(0.0, description='camera position in the base frame, metres')
-    camera_y: float = Field(0.0, description='camera position in the base frame, metres')
-    camera_height: float = Field(0.45, description='camera height above the floor, metres')
-    camera_roll: float = Field(0.0, description='camera roll, radians')
-    camera_pitch: float = Field(
-        math.radians(20.0), description='camera pitch, radians, positive looks down'
+    camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
+    camera_y: float = _metres(0.0, 'camera position in the base frame, metres')
+    camera_height: float = _metres(0.45, 'camera height above the floor, metres')
+    camera_roll: float = _radians(0.0, 'camera roll, radians')
+    camera_pitch: float = _radians(math.radians(20.0), 'camera pitch, radians, positive looks down')
+    camera_yaw: float = _radians(0.0, 'camera yaw, radians, positive looks left')
+    lidar_x: float = _metres(0.0, 'LiDAR position in the base frame, metres')
+    lidar_y: float = _metres(0.0, 'LiDAR position in the base frame, metres')
+    lidar_height: float = _metres(0.30, 'LiDAR height above the floor, metres')
+    lidar_roll: float = _radians(
+        0.0, 'LiDAR roll in the base frame, radians (pi: mounted upside down)'
     )
-    camera_yaw: float = Field(0.0, description='camera yaw, radians, positive looks left')
-    lidar_x: float = Field(0.0, description='LiDAR position in the base frame, metres')
-    lidar_y: float = Field(0.0, description='LiDAR position in the base frame, metres')
-    lidar_height: float = Field(0.30, description='LiDAR height above the floor, metres')
-    lidar_roll: float = Field(
-        0.0, description='LiDAR roll in the base frame, radians (pi: mounted upside down)'
-    )
-    lidar_pitch: float = Field(0.0, description='LiDAR pitch in the base frame, radians')
-    lidar_yaw: float = Field(0.0, description='LiDAR yaw in the base frame, radians')
+    lidar_pitch: float = _radians(0.0, 'LiDAR pitch in the base frame, radians')
+    lidar_yaw: float = _radians(0.0, 'LiDAR yaw in the base frame, radians')
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
     base_frame: str = Field('base_link', description='robot frame whose z = 0 is the floor')
     max_time_offset: float = Field(
-        0.1, gt=0.0, description='largest LiDAR-to-depth stamp difference paired, seconds'
+        0.1,
+        gt=0.0,
+        le=MAX_TIME_OFFSET,
+        allow_inf_nan=False,
+        description='largest LiDAR-to-depth stamp difference paired, seconds',
     )
     motion_compensation: bool = Field(
         default=True,
@@ -165,7 +203,11 @@ class FusionConfig(BaseModel):
         ),
     )
     camera_timeout: float = Field(
-        0.5, gt=0.0, description='camera silence after which the LiDAR passes through, seconds'
+        0.5,
+        gt=0.0,
+        le=MAX_CAMERA_TIMEOUT,
+        allow_inf_nan=False,
+        description='camera silence after which the LiDAR passes through, seconds',
     )
     publish_depth_scan: bool = Field(
         default=True, description='also publish the depth scan on /scan_depth'

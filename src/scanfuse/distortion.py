@@ -51,6 +51,9 @@ def _coefficients(model: str, coeffs: Sequence[float]) -> Array:
         )
         raise InputError(msg)
     values = [float(value) for value in coeffs]
+    if not all(np.isfinite(values)):
+        msg = f'{model} distortion coefficients must be finite, got {tuple(values)}'
+        raise InputError(msg)
     extra = values[len(names) :]
     if any(value != 0.0 for value in extra):
         msg = (

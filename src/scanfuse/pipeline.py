@@ -7,18 +7,20 @@ call `FusionPipeline.fuse`; there is no second implementation of the fusion.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.convert.row import row_scan
+from scanfuse.errors import InputError
 from scanfuse.fuse.merge import merge_scans
 from scanfuse.fuse.resample import Plan, apply_plan, build_plan
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
-from scanfuse.transforms import Extrinsics
+from scanfuse.transforms import MAX_MOUNTING_OFFSET, Extrinsics
 
 if TYPE_CHECKING:
     import numpy as np
@@ -26,6 +28,78 @@ if TYPE_CHECKING:
 
     from scanfuse.camera import CameraModel
     from scanfuse.scan import AngleGrid, Scan
+
+
+# A robot has one camera and one LiDAR; a few entries cover a change of either (a new
+# CameraInfo, TF after parameters) without keeping every one ever seen (a projector is ~9 MB).
+PROJECTOR_CACHE_SIZE = 4
+PLAN_CACHE_SIZE = 8
+# Two LiDAR grids of one count are one grid when no reading's angle differs by more than this
+# share of a slot. Some drivers jitter angle_min by microradians from scan to scan
+# (rplidar_ros); 1 % of a slot (87 microradians at 720 readings per turn) moves the edge
+# where a depth point is binned far less than any LiDAR's beam is wide.
+GRID_TOLERANCE = 0.01
+
+# cos^2 + sin^2 of a motion's rotation may differ from 1 by float rounding, not by more.
+MOTION_TOLERANCE = 1e-6
+
+Key = TypeVar('Key')
+Value = TypeVar('Value')
+
+
+def grids_match(first: AngleGrid, second: AngleGrid) -> bool:
+    """Whether every reading of the two grids points within `GRID_TOLERANCE` slots alike."""
+    if first.count != second.count:
+        return False
+    # Reading i differs by d_min + i * d_increment: the largest is at one end.
+    d_min = second.angle_min - first.angle_min
+    d_increment = second.angle_increment - first.angle_increment
+    worst = max(abs(d_min), abs(d_min + (first.count - 1) * d_increment))
+    return worst <= GRID_TOLERANCE * abs(first.angle_increment)
+
+
+class GridCache(Generic[Key, Value]):
+    """The `size` most recently used values, keyed exactly and by grids within tolerance."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._entries: list[tuple[Key, tuple[AngleGrid, ...], Value]] = []
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def get(self, key: Key, grids: tuple[AngleGrid, ...]) -> Value | None:
+        for index, (entry_key, entry_grids, value) in enumerate(self._entries):
+            if entry_key == key and all(map(grids_match, entry_grids, grids)):
+                self._entries.append(self._entries.pop(index))  # now the most recent
+                return value
+        return None
+
+    def put(self, key: Key, grids: tuple[AngleGrid, ...], value: Value) -> None:
+        self._entries.append((key, grids, value))
+        del self._entries[: -self.size]
+
+
+def check_motion(motion: PlanarMotion) -> None:
+    """InputError unless `motion` is a finite rotation and a plausible translation.
+
+    The obstacle kernel bins every moved point by its angle: a NaN or float32-overflowing
+    motion would give every point a meaningless slot. Between a depth frame and a scan
+    (at most max_time_offset, 10 s, apart) no robot moves 100 m.
+    """
+    values = (motion.cos, motion.sin, motion.tx, motion.ty)
+    if not all(math.isfinite(value) for value in values):
+        msg = f'motion {motion} must be finite; check the odometry it was found from'
+        raise InputError(msg)
+    if abs(motion.cos**2 + motion.sin**2 - 1.0) > MOTION_TOLERANCE:
+        msg = f'motion {motion} is not a rotation (cos^2 + sin^2 must be 1)'
+        raise InputError(msg)
+    if max(abs(motion.tx), abs(motion.ty)) > MAX_MOUNTING_OFFSET:
+        msg = (
+            f'motion {motion} moves the LiDAR more than {MAX_MOUNTING_OFFSET:g} m between '
+            'the depth frame and the scan; check the odometry and the stamps'
+        )
+        raise InputError(msg)
 
 
 @dataclass(frozen=True)
@@ -55,7 +129,9 @@ class FusionPipeline:
 
     Work that depends only on the camera, the extrinsics and the LiDAR's grid
     (ray tables, resampling index plans) is done on first use and kept, so the
-    per-frame cost is only the per-pixel arithmetic.
+    per-frame cost is only the per-pixel arithmetic. Only the few most recently used
+    are kept, and LiDAR grids that differ by less than `GRID_TOLERANCE` of a slot share
+    them: memory stays bounded whatever the inputs.
     """
 
     def __init__(self, config: FusionConfig | None = None) -> None:
@@ -71,8 +147,15 @@ class FusionPipeline:
             if self.config.floor_guard and not self.config.d2l_compat
             else None
         )
-        self._plans: dict[tuple[AngleGrid, AngleGrid], Plan] = {}
-        self._projectors: dict[tuple[CameraModel, Extrinsics, AngleGrid], ObstacleProjector] = {}
+        self._plans: GridCache[None, Plan] = GridCache(PLAN_CACHE_SIZE)
+        self._projectors: GridCache[tuple[CameraModel, Extrinsics], ObstacleProjector] = GridCache(
+            PROJECTOR_CACHE_SIZE
+        )
+
+    @property
+    def cached(self) -> tuple[int, int]:
+        """How many obstacle projectors and resampling plans are kept now."""
+        return len(self._projectors), len(self._plans)
 
     def fuse(
         self,
@@ -90,12 +173,20 @@ class FusionPipeline:
         camera, is turned by the motion's angle.
         """
         extrinsics = extrinsics or self._default_extrinsics
+        if not motion.is_identity:
+            check_motion(motion)
         start = time.perf_counter()
         if self.config.method is Method.OBSTACLE:
             depth_scan = self._projector(camera, extrinsics, lidar.grid).scan(depth, motion)
             converted = time.perf_counter()
+            # The projector may be one of a grid within tolerance: label with the LiDAR's own.
             on_lidar_grid = depth_scan.with_ranges(
-                depth_scan.ranges, frame_id=lidar.frame_id, stamp_ns=lidar.stamp_ns
+                depth_scan.ranges,
+                angle_min=lidar.angle_min,
+                angle_max=lidar.angle_max,
+                angle_increment=lidar.angle_increment,
+                frame_id=lidar.frame_id,
+                stamp_ns=lidar.stamp_ns,
             )
             resampled = time.perf_counter()
         else:
@@ -128,19 +219,18 @@ class FusionPipeline:
         )
 
     def _plan(self, source: AngleGrid, target: AngleGrid) -> Plan:
-        key = (source, target)
-        plan = self._plans.get(key)
+        plan = self._plans.get(None, (source, target))
         if plan is None:
-            plan = self._plans[key] = build_plan(self.config.resample, source, target)
+            plan = build_plan(self.config.resample, source, target)
+            self._plans.put(None, (source, target), plan)
         return plan
 
     def _projector(
         self, camera: CameraModel, extrinsics: Extrinsics, grid: AngleGrid
     ) -> ObstacleProjector:
-        key = (camera, extrinsics, grid)
-        projector = self._projectors.get(key)
+        projector = self._projectors.get((camera, extrinsics), (grid,))
         if projector is None:
-            projector = self._projectors[key] = ObstacleProjector(
+            projector = ObstacleProjector(
                 camera,
                 extrinsics,
                 grid,
@@ -151,4 +241,5 @@ class FusionPipeline:
                 min_points=self.config.obstacle_min_points,
                 cluster_spread=self.config.obstacle_cluster_spread,
             )
+            self._projectors.put((camera, extrinsics), (grid,), projector)
         return projector

@@ -66,6 +66,20 @@ class Scan:
         if not math.isfinite(self.angle_increment) or self.angle_increment == 0.0:
             msg = f'Scan.angle_increment must be finite and non-zero, got {self.angle_increment}'
             raise InputError(msg)
+        if not (math.isfinite(self.angle_min) and math.isfinite(self.angle_max)):
+            # A NaN angle also makes every grid unequal to itself (a cache miss per scan).
+            msg = (
+                f'Scan.angle_min and angle_max must be finite radians, got {self.angle_min} and '
+                f'{self.angle_max}; the driver publishes a malformed LaserScan'
+            )
+            raise InputError(msg)
+        # range_max may be +Inf (a driver with no upper limit); NaN limits mean nothing.
+        if not math.isfinite(self.range_min) or not self.range_min <= self.range_max:
+            msg = (
+                f'Scan.range_min must be finite and at most range_max, got {self.range_min} and '
+                f'{self.range_max}; the driver publishes a malformed LaserScan'
+            )
+            raise InputError(msg)
 
     def __len__(self) -> int:
         return int(self.ranges.size)
@@ -99,6 +113,9 @@ class AngleGrid:
         if not math.isfinite(self.angle_increment) or self.angle_increment == 0.0:
             msg = f'angle_increment must be finite and non-zero, got {self.angle_increment}'
             raise InputError(msg)
+        if not math.isfinite(self.angle_min):
+            msg = f'angle_min must be finite, got {self.angle_min}'
+            raise InputError(msg)
 
     @property
     def angle_max(self) -> float:
@@ -131,16 +148,21 @@ class AngleGrid:
 
 
 def normalized_ranges(scan: Scan) -> FloatArray:
-    """Ranges with finite readings outside [range_min, range_max] turned into NaN.
+    """Ranges with every finite value that is not a real reading turned into NaN.
 
-    Drivers report a failed return in several ways (0, a value past range_max);
-    for fusion such a reading carries no information and must not hide the other
-    sensor, while +-Inf keep their REP-117 meaning.
+    A real reading lies inside the scan's own [range_min, range_max] and is positive:
+    no sensor measures its own origin, and drivers write 0 for a failed return (the
+    Hokuyo URG recording in the tests: 35 of 681 readings a scan on average), which a
+    published range_min of 0 would otherwise let through. Other error values (below
+    range_min, a code past range_max) say nothing about the scene either, so they
+    become NaN, not +-Inf: a LaserScan has no field telling "too close" from "no
+    return", and a driver that means "too close" publishes -Inf (REP-117). +-Inf and
+    NaN keep their REP-117 meaning.
     """
     ranges = scan.ranges
     # Comparisons with NaN are False without a warning, so NaN and +-Inf stay.
-    usable = ((ranges >= scan.range_min) & (ranges <= scan.range_max)) | np.isinf(ranges)
-    return np.where(usable, ranges, np.float32(np.nan))
+    real = (ranges >= scan.range_min) & (ranges <= scan.range_max) & (ranges > 0.0)
+    return np.where(real | np.isinf(ranges), ranges, np.float32(np.nan))
 
 
 def to_rep117(values: FloatArray, range_min: float, range_max: float) -> FloatArray:

@@ -31,9 +31,10 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from scanfuse.errors import ConfigError
+from scanfuse.transforms import MAX_MOUNTING_OFFSET
 
 KINDS = ('lidars', 'cameras', 'clouds')
-MAX_MOUNT = 100.0  # metres from the base: anything farther is a typo or an overflow
+_REACH = MAX_MOUNTING_OFFSET  # metres from the base: anything farther is a typo or an overflow
 
 
 class Mounting(BaseModel):
@@ -41,9 +42,15 @@ class Mounting(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra='forbid')
 
-    x: float = Field(0.0, ge=-MAX_MOUNT, le=MAX_MOUNT, description='metres, forward')
-    y: float = Field(0.0, ge=-MAX_MOUNT, le=MAX_MOUNT, description='metres, left')
-    z: float = Field(0.0, ge=-MAX_MOUNT, le=MAX_MOUNT, description='metres above the floor')
+    x: float = Field(
+        0.0, ge=-MAX_MOUNTING_OFFSET, le=MAX_MOUNTING_OFFSET, description='metres, forward'
+    )
+    y: float = Field(
+        0.0, ge=-MAX_MOUNTING_OFFSET, le=MAX_MOUNTING_OFFSET, description='metres, left'
+    )
+    z: float = Field(
+        0.0, ge=-MAX_MOUNTING_OFFSET, le=MAX_MOUNTING_OFFSET, description='metres above the floor'
+    )
     roll: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi, description='radians')
     pitch: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi, description='radians, + down')
     yaw: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi, description='radians, + left')

@@ -37,6 +37,12 @@ Quaternion = tuple[float, float, float, float]
 Vector3 = tuple[float, float, float]
 
 _NORM_TOLERANCE = 1e-6
+# No frame of a robot's TF tree is this far from its parent (UTM northings stay below 1e7 m),
+# and the float32 arithmetic of the conversions stays far from overflow below it.
+MAX_TRANSLATION = 1.0e9
+# A sensor further than this from the base frame is a typo or a corrupt transform, not a
+# mounting (the bound of the `camera_*` and `lidar_*` parameters too).
+MAX_MOUNTING_OFFSET = 100.0
 
 
 def _quaternion_to_matrix(q: Quaternion) -> Matrix:
@@ -93,13 +99,23 @@ class Transform:
             msg = f'transform values must be finite, got rotation {self.rotation}, '
             msg += f'translation {self.translation}'
             raise TransformError(msg)
-        norm = math.sqrt(sum(value * value for value in self.rotation))
-        if norm < _NORM_TOLERANCE:
+        if max(abs(value) for value in self.translation) > MAX_TRANSLATION:
+            msg = (
+                f'transform translation {self.translation} is more than {MAX_TRANSLATION:g} m '
+                'from its parent frame; the transform is corrupt'
+            )
+            raise TransformError(msg)
+        # Scaled by the largest value first: squaring 1e300 would overflow the norm to Inf
+        # (and the quaternion to zero), squaring 1e-170 underflow it.
+        largest = max(abs(float(value)) for value in self.rotation)
+        scaled = [float(value) / largest for value in self.rotation] if largest else [0.0] * 4
+        unit_norm = math.sqrt(sum(value * value for value in scaled))
+        if largest * unit_norm < _NORM_TOLERANCE:
             msg = f'rotation quaternion {self.rotation} has zero length; use (0, 0, 0, 1) for none'
             raise TransformError(msg)
         # One canonical sign (w >= 0): q and -q are the same rotation and must hash equal.
         sign = -1.0 if self.rotation[3] < 0.0 else 1.0
-        rotation = tuple(sign * float(v) / norm for v in self.rotation)
+        rotation = tuple(sign * value / unit_norm for value in scaled)
         object.__setattr__(self, 'rotation', rotation)
         object.__setattr__(self, 'translation', tuple(float(v) for v in self.translation))
 
@@ -226,6 +242,18 @@ class Extrinsics:
     """Pose of the LiDAR in the base frame (TF parent base_link, child laser)."""
     base_to_camera_optical: Transform = BODY_TO_OPTICAL
     """Pose of the camera's optical frame in the base frame."""
+
+    def __post_init__(self) -> None:
+        for name in ('base_to_laser', 'base_to_camera_optical'):
+            translation = getattr(self, name).translation
+            if max(abs(value) for value in translation) > MAX_MOUNTING_OFFSET:
+                sensor = 'LiDAR' if name == 'base_to_laser' else 'depth camera'
+                msg = (
+                    f'the {sensor} is mounted at {translation} m in the base frame, more than '
+                    f'{MAX_MOUNTING_OFFSET:g} m from it along an axis; check the mounting '
+                    'parameters or the transforms on /tf_static'
+                )
+                raise TransformError(msg)
 
     @property
     def laser_to_camera_optical(self) -> Transform:

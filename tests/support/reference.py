@@ -83,8 +83,9 @@ def row_scan_loop(
     start = min(max(row - scan_height // 2, 0), camera.height - scan_height)
 
     # The grid: slots as wide as the widest spacing of neighbouring columns, from the
-    # rightmost column's angle to the leftmost's.
-    angles = [-math.atan(float(x)) for x in x_table[row]]
+    # rightmost column's angle to the leftmost's. A pixel without a ray (NaN where the
+    # lens distortion is not invertible) has no angle and takes no part.
+    angles = [-math.atan(float(x)) for x in x_table[row] if math.isfinite(x)]
     low, high = min(angles), max(angles)
     if len(angles) > 1:
         spacing = max(abs(b - a) for a, b in itertools.pairwise(angles))
@@ -104,6 +105,8 @@ def row_scan_loop(
             else:
                 z = float(raw)
             x_n, y_n = float(x_table[v, u]), float(y_table[v, u])
+            if not math.isfinite(x_n):
+                continue
             theta = -math.atan(x_n)  # equation 1: atan(X / Z) with X = x_n Z
             n = math.floor(count * (theta - alpha) / (beta - alpha))  # equation 2
             if not 0 <= n < count:

@@ -230,14 +230,29 @@ def slot_grid(column_angles: Float64Array) -> tuple[float, float, int]:
     """(angle_min, angle_increment, count) of the default mode's grid from one row's columns.
 
     The increment is at least the widest spacing between neighbouring columns (the
-    pair at the principal point), so every slot holds at least one column.
+    pair at the principal point), so every slot holds at least one column. Columns
+    without a ray (NaN: lens distortion not invertible there) take no part.
     """
-    if column_angles.size < 2:
+    angles = column_angles[np.isfinite(column_angles)]
+    if angles.size == 0:
+        msg = (
+            'no pixel of the scan row has a ray: the lens distortion is not invertible '
+            'anywhere along it; choose a row nearer the principal point (scan_row) or '
+            'check the CameraInfo distortion coefficients'
+        )
+        raise InputError(msg)
+    if angles.size < 2:
         # One column: one slot as wide as that pixel, an arbitrary but honest width.
-        return float(column_angles.min()), 1.0e-3, 1
-    low = float(column_angles.min())
-    high = float(column_angles.max())
-    spacing = float(np.abs(np.diff(column_angles)).max())
+        return float(angles.min()), 1.0e-3, 1
+    low = float(angles.min())
+    high = float(angles.max())
+    spacing = float(np.abs(np.diff(angles)).max())
+    if not spacing > 0.0:
+        msg = (
+            f'the columns of the scan row all have the bearing {low} rad: the focal length '
+            'is too long for their angles to differ; check the CameraInfo (fx)'
+        )
+        raise InputError(msg)
     count = math.floor((high - low) / spacing) + 1
     return low, (high - low) / (count - 1), count
 
@@ -246,12 +261,14 @@ def slot_of(angles: Float64Array, angle_min: float, increment: float, count: int
     """Equation 2, n = N (theta - alpha) / (beta - alpha), with [alpha, beta] the outer
     edges of the N slots, so that the floor is the slot with the nearest centre.
 
-    -1 for angles outside the grid.
+    -1 for angles outside the grid and for NaN (a pixel without a ray).
     """
     alpha = angle_min - 0.5 * increment
     beta = angle_min + (count - 0.5) * increment
-    index = np.floor(count * (angles - alpha) / (beta - alpha)).astype(np.int64)
-    return np.where((index >= 0) & (index < count), index, -1)
+    with np.errstate(invalid='ignore'):
+        position = np.floor(count * (angles - alpha) / (beta - alpha))
+        inside = (position >= 0) & (position < count)
+    return np.where(inside, np.where(inside, position, 0).astype(np.int64), -1)
 
 
 def _smallest_code(predicate: Callable[[IntArray], BoolArray], shape: tuple[int, ...]) -> IntArray:
@@ -295,8 +312,10 @@ def row_plan(
     range_per_depth = np.sqrt(1.0 + x_row * x_row).astype(np.float32)
 
     column_slots = slot_of(_column_angles(x_row), angle_min, increment, count)
-    order: IntArray | slice = np.argsort(column_slots, kind='stable').astype(np.int64)
-    if np.all(np.diff(column_slots) <= 0):
+    # Columns without a ray (slot -1) take no part.
+    with_ray = np.flatnonzero(column_slots >= 0)
+    order: IntArray | slice = with_ray[np.argsort(column_slots[with_ray], kind='stable')]
+    if with_ray.size == column_slots.size and np.all(np.diff(column_slots) <= 0):
         # Angles fall from left to right: reversing the columns sorts them, with no gather.
         order = slice(None, None, -1)
     sorted_slots = column_slots[order]
@@ -518,10 +537,24 @@ def d2l_plan(camera: CameraModel, unit_scaling: float) -> D2lPlan:
     left = ((0.0 - camera.cx) / camera.fx, 0.0, 1.0)
     right = ((camera.width - 1 - camera.cx) / camera.fx, 0.0, 1.0)
     centre = ((camera.cx - camera.cx) / camera.fx, 0.0, 1.0)
+    if camera.width < 2:
+        msg = (
+            f'd2l_compat needs an image at least 2 pixels wide, got {camera.width}: '
+            'depthimage_to_laserscan divides its field of view by width - 1; '
+            'turn d2l_compat off for this camera'
+        )
+        raise InputError(msg)
     # LaserScan's angle fields are float32.
     angle_max = np.float32(_angle_between_rays(left, centre))
     angle_min = np.float32(-_angle_between_rays(centre, right))
     increment = np.float32((angle_max - angle_min) / np.float32(camera.width - 1))
+    if not increment > 0.0:
+        msg = (
+            f'with fx={camera.fx} the image spans {float(angle_max - angle_min)} rad, too '
+            'little for float32 angles to tell its columns apart (depthimage_to_laserscan '
+            'divides by the increment); check the CameraInfo or turn d2l_compat off'
+        )
+        raise InputError(msg)
     center_x = np.float32(camera.cx)
     constant_x = np.float32(unit_scaling / camera.fx)
     column_offset = np.arange(camera.width, dtype=np.float32) - center_x

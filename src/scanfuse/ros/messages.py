@@ -23,6 +23,7 @@ from scanfuse.errors import InputError, MessageError
 from scanfuse.frames import StampedTransform, frame_name
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
+from scanfuse.transforms import MAX_TRANSLATION
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -342,11 +343,20 @@ def transforms_from_msg(message: Any) -> list[StampedTransform]:
                 f'rotation quaternion of norm {norm:.4f}; it must be a unit quaternion'
             )
             raise MessageError(msg)
+        translation = (float(t.x), float(t.y), float(t.z))
+        if not all(abs(value) <= MAX_TRANSLATION for value in translation):
+            # Also false for NaN. A finite float64 past float32's range (1e39) would become
+            # Inf in the conversions' float32 arithmetic.
+            msg = (
+                f'transform {stamped.header.frame_id!r} -> {stamped.child_frame_id!r} has the '
+                f'translation {translation}; it must be finite and within {MAX_TRANSLATION:g} m'
+            )
+            raise MessageError(msg)
         out.append(
             StampedTransform(
                 parent=frame_name(str(stamped.header.frame_id)),
                 child=frame_name(str(stamped.child_frame_id)),
-                translation=(float(t.x), float(t.y), float(t.z)),
+                translation=translation,
                 rotation=tuple(value / norm for value in rotation),  # type: ignore[arg-type]
                 stamp_ns=stamp_to_ns(stamped.header.stamp),
             )
