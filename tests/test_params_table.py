@@ -16,6 +16,7 @@ from pydantic import BaseModel, Field
 from scanfuse.cli import main
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
+from scanfuse.ros import params
 from scanfuse.ros.params import (
     DESCRIPTOR_LIMITS,
     REGENERATE,
@@ -23,6 +24,7 @@ from scanfuse.ros.params import (
     Bounds,
     Kind,
     NodeSettings,
+    ParamSpec,
     all_param_specs,
     field_bounds,
     parameters_markdown,
@@ -78,22 +80,32 @@ def test_descriptor_limits_never_restate_a_side_the_field_bounds():
 def test_ranges_come_from_the_fields_and_close_open_sides():
     declared = specs()
     # Field ge=0, le=1 and no descriptor limit: the node's range is the Field's.
+    assert declared['max_odometry_extrapolation'].bounds == Bounds(0.0, 1.0)
     assert declared['max_odometry_extrapolation'].value_range == (0.0, 1.0)
-    # Field gt=0 and DESCRIPTOR_LIMITS' upper 1000: (0, 1000], sent to rclpy as [0, 1000].
-    assert declared['range_max'].bounds == Bounds(0.0, 1000.0, low_exclusive=True)
-    assert declared['range_max'].value_range == (0.0, 1000.0)
-    # No Field bound: both sides are the descriptor's.
-    assert declared['camera_pitch'].value_range == (-math.pi / 2, math.pi / 2)
+    assert not declared['max_odometry_extrapolation'].node_only_bounds
+    # Field ge=1, DESCRIPTOR_LIMITS closes the top: the node's range, not FusionConfig's.
+    assert declared['scan_height'].value_range == (1, 100_000)
+    assert declared['scan_height'].node_only_bounds
     # Field ge=0 for a row; the ROS parameter also takes -1 (the principal-point row).
     assert declared['scan_row'].value_range == (SCAN_ROW_CENTRE, 100_000)
-    # Field ge=1 only: one-sided, so rclpy gets no range and FusionConfig checks it.
-    assert declared['obstacle_min_points'].value_range is None
+    # gt=0: rclpy's inclusive range starts at 0, FusionConfig refuses the 0 itself.
+    assert declared['range_max'].bounds.low_exclusive
+    assert declared['range_max'].value_range == (0.0, 1000.0)
     # Node settings from NodeSettings' Fields.
     assert declared['pair_wait'].value_range == (0.0, 1.0)
     assert declared['lidar_timeout'].value_range == (0.05, 60.0)
     for spec in declared.values():
         if spec.kind in (Kind.BOOL, Kind.STRING):
             assert spec.value_range is None, spec.name
+        else:
+            assert spec.bounds.low is not None, f'{spec.name} has no lower bound'
+
+
+def test_one_sided_bounds_give_no_rclpy_range():
+    bounds = Bounds(1, None)
+    assert bounds.inclusive is None
+    spec = ParamSpec('k', Kind.INTEGER, 16, 'points', start_up_only=False, bounds=bounds)
+    assert spec.value_range is None  # FusionConfig still refuses 0
 
 
 def test_descriptors_carry_the_ranges_rclpy_enforces():
@@ -101,13 +113,13 @@ def test_descriptors_carry_the_ranges_rclpy_enforces():
     from scanfuse.ros.node import descriptor
 
     declared = specs()
-    pitch = descriptor(declared['camera_pitch']).floating_point_range[0]
-    assert (pitch.from_value, pitch.to_value) == (-math.pi / 2, math.pi / 2)
     row = descriptor(declared['scan_row']).integer_range[0]
     assert (row.from_value, row.to_value) == (SCAN_ROW_CENTRE, 100_000)
     extrapolation = descriptor(declared['max_odometry_extrapolation']).floating_point_range[0]
     assert (extrapolation.from_value, extrapolation.to_value) == (0.0, 1.0)
-    assert list(descriptor(declared['obstacle_min_points']).integer_range) == []
+    one_sided = ParamSpec('k', Kind.INTEGER, 16, 'k', start_up_only=False, bounds=Bounds(1, None))
+    assert list(descriptor(one_sided).integer_range) == []
+    assert list(descriptor(declared['base_frame']).floating_point_range) == []
 
 
 def test_node_settings_outside_their_field_bounds_are_refused():
@@ -142,12 +154,14 @@ def test_the_table_has_one_row_per_declared_parameter():
     by_name = dict(zip(names, rows, strict=True))
     cells = [cell.strip() for cell in by_name['fused_topic'].strip('|').split(' | ')]
     assert cells == ['`fused_topic`', '`/scan_fused`', '', '', 'yes', 'fused LaserScan topic']
-    cells = [cell.strip() for cell in by_name['max_time_offset'].strip('|').split(' | ')]
-    # gt=0 from the Field, 5 from DESCRIPTOR_LIMITS: marked * (the node's only).
-    assert cells[:5] == ['`max_time_offset`', '`0.1`', '(0.0, 5.0] *', 's', '']
-    cells = [cell.strip() for cell in by_name['camera_pitch'].strip('|').split(' | ')]
-    assert cells[2] == '[-π/2, π/2] *'
+    cells = [cell.strip() for cell in by_name['max_odometry_extrapolation'].strip('|').split(' | ')]
+    assert cells[:5] == ['`max_odometry_extrapolation`', '`0.1`', '[0.0, 1.0]', 's', '']
+    cells = [cell.strip() for cell in by_name['scan_height'].strip('|').split(' | ')]
+    # ge=1 from the Field, 100000 from DESCRIPTOR_LIMITS: marked * (the node's only).
+    assert cells[:4] == ['`scan_height`', '`1`', '[1, 100000] *', '']
     assert '`row` \\| `obstacle`' in by_name['method']
+    assert Bounds(-math.pi / 2, math.pi).text(params._number) == '[-π/2, π]'
+    assert Bounds(0.0, None, low_exclusive=True).text(params._number) == '> 0.0'
 
 
 def test_docs_parameters_md_is_current():
