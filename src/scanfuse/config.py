@@ -134,6 +134,31 @@ class FusionConfig(BaseModel):
     )
     odom_frame: str = Field('odom', description='odometry frame (REP-105) of TF odometry')
     odom_topic: str = Field('/odom', description='nav_msgs/Odometry topic')
+    memory: bool = Field(
+        default=True,
+        description=(
+            'with odometry, remember camera obstacles in the odometry frame and keep them in '
+            'the fused scan when the camera no longer sees them (only the camera clears them)'
+        ),
+    )
+    memory_radius: float = Field(
+        2.0, gt=0.0, le=20.0, description='metres around the robot obstacles are remembered'
+    )
+    memory_time: float = Field(
+        20.0, gt=0.0, le=3600.0, description='seconds an obstacle is remembered unless re-seen'
+    )
+    memory_cell: float = Field(
+        0.025, ge=0.005, le=0.5, description='metres: one remembered point per cell this size'
+    )
+    memory_odometry_timeout: float = Field(
+        1.0,
+        gt=0.0,
+        le=60.0,
+        description=(
+            'seconds without usable odometry after which the memory is dropped (until then it '
+            'is frozen: neither merged nor updated)'
+        ),
+    )
     camera_timeout: float = Field(
         0.5, gt=0.0, description='camera silence after which the LiDAR passes through, seconds'
     )
@@ -145,6 +170,16 @@ class FusionConfig(BaseModel):
     camera_info_topic: str = Field('/camera/depth/camera_info', description='CameraInfo topic')
     fused_topic: str = Field('/scan_fused', description='fused LaserScan topic')
     depth_scan_topic: str = Field('/scan_depth', description='depth LaserScan topic')
+    instant_topic: str = Field(
+        '/scan_fused_instant',
+        description=(
+            'fused LaserScan without the memory (for SLAM: measurements only); empty: not published'
+        ),
+    )
+    memory_scan_topic: str = Field(
+        '/scan_memory',
+        description='LaserScan of the remembered obstacles alone (viewing); empty: not published',
+    )
 
     @model_validator(mode='after')
     def _check_limits(self) -> FusionConfig:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import TYPE_CHECKING, Generic, TypeVar
 
@@ -45,6 +45,8 @@ import numpy as np
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
+from scanfuse.fuse.merge import merge_scans
+from scanfuse.memory import MemorySettings, ObstacleMemory, Placement, points_of_scan
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.transforms import Extrinsics, Transform
@@ -125,6 +127,8 @@ class StreamOutput(Generic[T]):
     compensation: Compensation = Compensation.NO_ODOMETRY
     deskewed: bool = False
     timings: StageTimings | None = None
+    instant: Scan | None = None  # with memory on: `fused` before the memory was merged
+    memory_scan: Scan | None = None  # the remembered obstacles alone, on the LiDAR's grid
 
     @property
     def with_camera(self) -> bool:
@@ -140,6 +144,9 @@ class StreamCounts:
     fused: int = 0
     compensated: int = 0
     deskewed: int = 0
+    remembered: int = 0  # output scans the memory added to
+    memory_cleared: int = 0  # remembered points the camera saw free
+    memory_dropped: int = 0  # times the memory was dropped (odometry lost or jumped)
     passed: dict[Passed, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
@@ -192,6 +199,10 @@ class FusionStream(Generic[T]):
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
+        self.memory: ObstacleMemory | None = None
+        self._memory_segment: int | None = None  # odometry segment the points belong to
+        self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
+        self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
@@ -206,6 +217,18 @@ class FusionStream(Generic[T]):
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
+        settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
+        if not config.memory:
+            self.memory = None
+        elif (
+            self.memory is None
+            or self.memory.settings.side != settings.side
+            or (self.memory.settings.cell != settings.cell)
+        ):
+            self.memory = ObstacleMemory(settings)  # a new cell size or radius starts afresh
+            self._memory_segment = None
+        else:
+            self.memory.settings = settings  # what is remembered stays
 
     # ------------------------------------------------------------ inputs
 
@@ -405,7 +428,7 @@ class FusionStream(Generic[T]):
         self.counts.fused += 1
         if compensation is Compensation.COMPENSATED:
             self.counts.compensated += 1
-        return StreamOutput(
+        output = StreamOutput(
             token=pending.token,
             lidar=lidar,
             fused=result.fused,
@@ -416,12 +439,13 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=result.timings,
         )
+        return self._remember(output, frame, choice.extrinsics)
 
     def _pass(
         self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
     ) -> StreamOutput[T]:
         self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
-        return StreamOutput(
+        output = StreamOutput(
             token=pending.token,
             lidar=lidar,
             fused=lidar if deskewed else None,
@@ -430,6 +454,78 @@ class FusionStream(Generic[T]):
             passed=reason,
             deskewed=deskewed,
         )
+        return self._remember(output, None, None)
+
+    # ------------------------------------------------------------ memory
+
+    def _remember(
+        self, output: StreamOutput[T], frame: DepthFrame | None, extrinsics: Extrinsics | None
+    ) -> StreamOutput[T]:
+        """Clear, add, forget, and merge the remembered obstacles into `output`."""
+        memory = self.memory
+        if memory is None or not len(self.odometry):
+            return output
+        scan = output.lidar
+        base = self.odometry.pose_at(scan.stamp_ns)
+        if base.pose is None:
+            self._memory_frozen(scan.stamp_ns)
+            return output
+        if self._memory_segment is not None and base.segment != self._memory_segment:
+            self._drop_memory('odometry jumped (reset or relocalisation)')
+        self._memory_segment = base.segment
+        self._memory_placed_ns = scan.stamp_ns
+        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
+            self._clear_seen(memory, frame, extrinsics)
+        placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
+        if output.depth_scan is not None:
+            memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
+        memory.forget(base.pose.x, base.pose.y, scan.stamp_ns)
+        remembered = scan.with_ranges(
+            memory.scan(placement, scan.grid).astype(np.float32),
+            range_min=scan.range_min,
+            range_max=scan.range_max,
+        )
+        instant = output.fused
+        if not np.isfinite(remembered.ranges).any():
+            return replace(output, instant=instant, memory_scan=remembered)
+        self.counts.remembered += 1
+        fused = merge_scans(instant if instant is not None else output.lidar, remembered)
+        return replace(output, fused=fused, instant=instant, memory_scan=remembered)
+
+    def _clear_seen(
+        self, memory: ObstacleMemory, frame: DepthFrame, extrinsics: Extrinsics
+    ) -> None:
+        camera_base = self.odometry.pose_at(frame.stamp_ns)
+        if camera_base.pose is None or camera_base.segment != self._memory_segment:
+            return
+        self._cleared_with = frame.stamp_ns
+        base = camera_base.pose
+        odom_to_base = Transform.from_rpy(0.0, 0.0, base.yaw, (base.x, base.y, 0.0))
+        config = self.config
+        self.counts.memory_cleared += memory.clear_seen(
+            frame.depth,
+            frame.camera,
+            odom_to_base @ extrinsics.base_to_camera_optical,
+            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            range_min=config.range_min,
+            range_max=config.range_max,
+        )
+
+    def _memory_frozen(self, stamp_ns: int) -> None:
+        placed = self._memory_placed_ns
+        timeout = seconds_to_ns(self.config.memory_odometry_timeout)
+        if placed is not None and stamp_ns - placed > timeout:
+            self._drop_memory(
+                f'no usable odometry for {(stamp_ns - placed) / 1e9:.1f} s '
+                '(memory_odometry_timeout)'
+            )
+            self._memory_placed_ns = None
+
+    def _drop_memory(self, why: str) -> None:
+        if self.memory is not None and len(self.memory):
+            self.memory.clear()
+            self.counts.memory_dropped += 1
+            self._warn_once(f'memory dropped: {why}', f'obstacle memory dropped: {why}')
 
     # ------------------------------------------------------------ extrinsics
 

@@ -699,7 +699,7 @@ class _BagJob:
     def choose_topics(
         self, scan: str | None, depth: str | None, camera_info: str | None
     ) -> TopicChoice:
-        reserved = {self.config.fused_topic, self.config.depth_scan_topic}
+        reserved = self._output_topics()
         clash = sorted(reserved & set(self.topics_types))
         if clash:
             msg = (
@@ -719,8 +719,15 @@ class _BagJob:
         self.choice = TopicChoice(scan_topic, depth_topic, info_topic)
         return self.choice
 
+    def _output_topics(self) -> set[str]:
+        config = self.config
+        topics = {config.fused_topic, config.depth_scan_topic}
+        if config.memory:
+            topics |= {config.instant_topic, config.memory_scan_topic} - {''}
+        return topics
+
     def _candidates(self, msgtype: str) -> dict[str, str]:
-        reserved = {self.config.fused_topic, self.config.depth_scan_topic}
+        reserved = self._output_topics()
         return {
             name: t
             for name, t in self.topics_types.items()
@@ -856,9 +863,31 @@ class _BagJob:
                 else None
             )
 
+            memory_conns = {
+                topic: writer.add_connection(topic, LASER_SCAN, typestore=self.store)
+                for topic in (self.config.instant_topic, self.config.memory_scan_topic)
+                if self.config.memory and topic
+            }
+
+            def remember(result: StreamOutput[_Lidar]) -> None:
+                """The memory's outputs, for the scans it was placed for (odometry known)."""
+                if result.memory_scan is None:
+                    return
+                lidar, config = result.token, self.config
+                instant = result.instant or (result.lidar if result.deskewed else None)
+                outputs = {
+                    config.instant_topic: lidar.raw
+                    if instant is None
+                    else scan_to_cdr(instant, self.store),
+                    config.memory_scan_topic: scan_to_cdr(result.memory_scan, self.store),
+                }
+                for topic, connection in memory_conns.items():
+                    writer.write(connection, lidar.log_time, outputs[topic])
+
             def emit(released: list[StreamOutput[_Lidar]]) -> None:
                 for result in released:
                     lidar = result.token
+                    remember(result)
                     if result.fused is None:
                         writer.write(fused_conn, lidar.log_time, lidar.raw)
                         continue

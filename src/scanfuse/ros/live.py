@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
     from scanfuse.config import FusionConfig
     from scanfuse.ros.messages import RawMessage
+    from scanfuse.scan import Scan
 
 logger = logging.getLogger(__name__)
 
@@ -61,6 +62,7 @@ class State(str, Enum):
     CAMERA_UNUSABLE = 'camera input unusable'
     NO_EXTRINSICS = 'pass-through (extrinsics refused)'
     TOO_SLOW = 'processing too slow'
+    MEMORY_DROPPED = 'obstacle memory dropped'
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,8 @@ class Output:
     depth_scan: bytes | None
     received: float  # monotonic seconds the LiDAR scan arrived
     with_camera: bool
+    instant: bytes | None = None  # with memory: the fused scan without it
+    memory_scan: bytes | None = None  # with memory: the remembered obstacles alone
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,7 @@ class _Window:
     stamps: list[int] = field(default_factory=list)
     passed: dict[Passed, int] = field(default_factory=dict)
     empty_depth: int = 0  # fused scans whose depth scan held no reading at all
+    memory_drops: int = 0
     malformed_depth: int = 0
 
 
@@ -131,6 +136,7 @@ class LiveFusion:
         self._last_warning: dict[str, float] = {}
         self._window = _Window()
         self._window_start: float | None = None
+        self._memory_drops_reported = 0
 
     # ------------------------------------------------------------ configuration
 
@@ -271,9 +277,11 @@ class LiveFusion:
                     'passing the LiDAR through',
                 )
         fused = result.fused
-        if fused is None:
-            return Output(result.token, None, received, with_camera=False)
         try:
+            instant = self._instant(result) if self.stream.memory is not None else None
+            memory = self._cdr(result.memory_scan)
+            if fused is None:
+                return Output(result.token, None, received, False, instant, memory)  # noqa: FBT003
             fused_raw = scan_to_cdr(fused, self.store)
             depth_raw = (
                 scan_to_cdr(result.depth_scan, self.store)
@@ -289,7 +297,16 @@ class LiveFusion:
                 window.times.append(result.timings.total)
             if result.depth_scan is not None and np.isnan(result.depth_scan.ranges).all():
                 window.empty_depth += 1
-        return Output(fused_raw, depth_raw, received, with_camera=result.with_camera)
+        return Output(fused_raw, depth_raw, received, result.with_camera, instant, memory)
+
+    def _instant(self, result: StreamOutput[bytes]) -> bytes | None:
+        """The fused scan without the memory; the LiDAR's own bytes when nothing was fused."""
+        if result.instant is not None:
+            return self._cdr(result.instant)
+        return self._cdr(result.lidar) if result.deskewed else result.token
+
+    def _cdr(self, scan: Scan | None) -> bytes | None:
+        return None if scan is None else scan_to_cdr(scan, self.store)
 
     # ------------------------------------------------------------ failures
 
@@ -327,10 +344,14 @@ class LiveFusion:
             'passed through': str(counts.passed_through),
             'motion compensated': str(counts.compensated),
             'de-skewed': str(counts.deskewed),
+            'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
+            'memory dropped': str(counts.memory_dropped),
             'extrinsics': self.extrinsics_source,
             **{f'passed ({reason.value})': str(n) for reason, n in counts.passed.items()},
             **{f'malformed {kind}': str(count) for kind, count in sorted(counts.malformed.items())},
         }
+        window.memory_drops = counts.memory_dropped - self._memory_drops_reported
+        self._memory_drops_reported = counts.memory_dropped
         level, state, message = self._classify(now, camera_age, window)
         values['state'] = state.value
         return Health(level, state, message, values)
@@ -343,6 +364,7 @@ class LiveFusion:
             self._extrinsics_problem(window),
             self._silence_problem(camera_age, window),
             self._usable_problem(window),
+            self._memory_problem(window),
             self._speed_problem(window),
         )
         return next((p for p in problems if p is not None), (Level.OK, State.FUSING, 'fusing'))
@@ -394,6 +416,16 @@ class LiveFusion:
             'usable depth (check the CameraInfo distortion and the depth encoding)'
         )
         return Level.WARN, State.CAMERA_UNUSABLE, message
+
+    def _memory_problem(self, window: _Window) -> Problem | None:
+        if not window.memory_drops:
+            return None
+        message = (
+            'obstacle memory dropped: odometry lost for memory_odometry_timeout or jumped '
+            f'(on {self.config.odom_topic} / TF {self.config.odom_frame}); obstacles outside '
+            'the camera view are forgotten'
+        )
+        return Level.WARN, State.MEMORY_DROPPED, message
 
     def _speed_problem(self, window: _Window) -> Problem | None:
         if not window.times or len(window.stamps) < 2:

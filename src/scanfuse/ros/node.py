@@ -188,6 +188,9 @@ class ScanfuseNode:
             if config.publish_depth_scan
             else None
         )
+        # The memory's outputs: the scan without it (SLAM) and the remembered points alone.
+        self.instant_pub = self._optional_scan_publisher(config.memory, config.instant_topic)
+        self.memory_pub = self._optional_scan_publisher(config.memory, config.memory_scan_topic)
         self.diagnostics_pub = self.node.create_publisher(
             DiagnosticArray, '/diagnostics', OUTPUT_QOS
         )
@@ -203,6 +206,11 @@ class ScanfuseNode:
         )
         if isinstance(self.view, FoxgloveView):
             self.rosout.info(f'Foxglove live view on {self.view.url}')
+
+    def _optional_scan_publisher(self, wanted: bool, topic: str) -> Any:
+        if not (wanted and topic):
+            return None
+        return self.node.create_publisher(LaserScan, topic, OUTPUT_QOS)
 
     def parameter_values(self) -> dict[str, Any]:
         return {name: self.node.get_parameter(name).value for name in self.specs}
@@ -293,12 +301,19 @@ class ScanfuseNode:
             return [] if lidar_raw is None else [_raw_output(lidar_raw)]
 
     def _publish(self, outputs: list[Output] | None) -> None:
+        topics = self.topics
         for output in outputs or []:
             self.fused_pub.publish(output.fused)
-            self.view.log(self.topics.fused_topic, output.fused)
-            if self.depth_pub is not None and output.depth_scan is not None:
-                self.depth_pub.publish(output.depth_scan)
-                self.view.log(self.topics.depth_scan_topic, output.depth_scan)
+            self.view.log(topics.fused_topic, output.fused)
+            extras = (
+                (self.depth_pub, topics.depth_scan_topic, output.depth_scan),
+                (self.instant_pub, topics.instant_topic, output.instant),
+                (self.memory_pub, topics.memory_scan_topic, output.memory_scan),
+            )
+            for publisher, topic, raw in extras:
+                if publisher is not None and raw is not None:
+                    publisher.publish(raw)
+                    self.view.log(topic, raw)
 
     # ------------------------------------------------------------ parameters
 

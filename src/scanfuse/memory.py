@@ -1,0 +1,308 @@
+"""Obstacle memory: what the camera saw in the collision slab, kept in the odometry frame.
+
+The depth camera sees about 87 degrees, the LiDAR 360; a low obstacle that leaves the
+camera's view falls back to the LiDAR's reading, which passes over it. The memory keeps
+the camera's obstacle points (the depth scan's readings, one nearest point per slot) in
+the odometry frame and merges them into every output scan, seen from the LiDAR at the
+scan's stamp.
+
+Store: a rolling grid of `cell` metre cells around the robot, one point per cell (the
+newest seen there, exact coordinates kept), so its size is bounded by construction:
+(2 radius / cell)^2 cells. A point is forgotten when it is more than `radius` from the
+robot, older than `max_age`, or when the camera looks at its place again and sees it
+free. Only the camera clears: the LiDAR's plane passes over low obstacles by design.
+
+Clearing (per depth frame fused): each remembered point is tried at a few heights of the
+collision slab (the obstacle's height is not kept). A height is *seen free* when it
+projects into the image, within the camera's range, and the pixel's depth lies beyond it
+by more than the noise; *seen occupied* when the depth is near it; *hidden* when the depth
+is shorter (something in front) or the pixel has no depth. A point is cleared when its
+lowest height is seen free and no height is seen occupied: a low obstacle stands on the
+floor, so the camera seeing the floor spot through the slab's bottom means it is gone; a
+point hidden behind a nearer obstacle is kept (occlusion).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from scanfuse.errors import InputError
+from scanfuse.scan import TWO_PI
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import numpy.typing as npt
+
+    from scanfuse.camera import CameraModel
+    from scanfuse.motion import PlanarPose
+    from scanfuse.scan import AngleGrid, Scan
+    from scanfuse.transforms import Transform
+
+    F64 = npt.NDArray[np.float64]
+
+# Cells kept at most: 2^21 (about 60 MB of arrays); a larger radius needs larger cells.
+MAX_CELLS = 1 << 21
+# Heights of the slab a remembered point is tried at, as fractions from bottom to top.
+CLEAR_HEIGHTS = (0.1, 0.5, 0.9)
+# How far beyond a point the depth must lie to count as seeing past it, metres at depth z:
+# 5 cm, 2 % and three sigma of active-stereo noise (sigma about 0.01 z^2).
+CLEAR_MARGIN = (0.05, 0.02, 0.03)
+
+
+@dataclass(frozen=True)
+class MemorySettings:
+    radius: float = 2.0
+    max_age: float = 20.0
+    cell: float = 0.025
+
+    def __post_init__(self) -> None:
+        for name in ('radius', 'max_age', 'cell'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                msg = f'memory {name} must be a positive finite number, got {value}'
+                raise InputError(msg)
+        if self.side**2 > MAX_CELLS:
+            msg = (
+                f'memory_radius {self.radius} m with memory_cell {self.cell} m needs '
+                f'{self.side**2} cells (at most {MAX_CELLS}); use a larger memory_cell'
+            )
+            raise InputError(msg)
+
+    @property
+    def side(self) -> int:
+        """Cells along one side of the rolling grid (covers the radius with a margin)."""
+        return math.ceil(2.0 * self.radius / self.cell) + 2
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A sensor's origin and xy axes in the odometry frame (a mirrored axis is allowed:
+    an upside-down LiDAR's y axis points right)."""
+
+    x: float
+    y: float
+    xx: float  # the sensor's x axis in odom
+    xy: float
+    yx: float  # the sensor's y axis in odom
+    yy: float
+
+    @classmethod
+    def of(cls, base: PlanarPose, base_to_sensor: Transform) -> Placement:
+        """The sensor on a base at `base` (odom frame), mounted at `base_to_sensor`."""
+        pose = base.matrix() @ base_to_sensor.matrix
+        return cls(
+            float(pose[0, 3]),
+            float(pose[1, 3]),
+            float(pose[0, 0]),
+            float(pose[1, 0]),
+            float(pose[0, 1]),
+            float(pose[1, 1]),
+        )
+
+    def to_odom(self, x: F64, y: F64) -> tuple[F64, F64]:
+        """Sensor-frame points (x, y) in the odometry frame."""
+        return self.x + self.xx * x + self.yx * y, self.y + self.xy * x + self.yy * y
+
+
+def _project_loop(
+    xs: Any,
+    ys: Any,
+    used: Any,
+    ox: float,
+    oy: float,
+    xx: float,
+    xy: float,
+    yx: float,
+    yy: float,
+    angle_min: float,
+    increment: float,
+    count: int,
+    turn: float,
+    out: Any,
+) -> None:
+    """Per slot the nearest remembered point seen from a sensor at origin (ox, oy) with axes
+    (xx, xy) and (yx, yy) in odom; NaN where no point falls."""
+    out[:] = np.nan
+    for i in used:
+        dx = xs[i] - ox
+        dy = ys[i] - oy
+        x = xx * dx + xy * dy  # the axes are orthonormal: projections give coordinates
+        y = yx * dx + yy * dy
+        r = math.sqrt(x * x + y * y)
+        if r == 0.0:
+            continue
+        # Slot k covers angle_min + (k +- 1/2) increment, counted round the whole turn.
+        position = ((math.atan2(y, x) - angle_min) / increment + 0.5) % turn
+        slot = math.floor(position)
+        if slot < 0 or slot >= count:
+            continue
+        if not out[slot] <= r:  # NaN or farther
+            out[slot] = r
+
+
+def _load_project() -> Callable[..., None]:
+    try:
+        import numba  # noqa: PLC0415
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return _project_loop
+    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_project_loop)
+    return kernel
+
+
+_PROJECT = _load_project()
+
+
+class ObstacleMemory:
+    """Remembered obstacle points in the odometry frame; see the module docstring."""
+
+    def __init__(self, settings: MemorySettings | None = None) -> None:
+        self.settings = settings or MemorySettings()
+        side = self.settings.side
+        self._x = np.zeros(side * side)
+        self._y = np.zeros(side * side)
+        self._seen_ns = np.zeros(side * side, dtype=np.int64)
+        self._key = np.full(side * side, -1, dtype=np.int64)  # absolute cell, -1: empty
+        self.cleared = 0
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(self._key >= 0))
+
+    def clear(self) -> None:
+        self._key[:] = -1
+
+    def points(self) -> tuple[F64, F64]:
+        """(x, y) in the odometry frame of every remembered point."""
+        used = self._key >= 0
+        return self._x[used].copy(), self._y[used].copy()
+
+    # ------------------------------------------------------------ adding and forgetting
+
+    def _cells(self, x: F64, y: F64) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        side, cell = self.settings.side, self.settings.cell
+        i = np.floor(x / cell).astype(np.int64)
+        j = np.floor(y / cell).astype(np.int64)
+        # Non-negative for |cell index| < 2^30 (26 000 km at 2.5 cm): -1 stays "empty".
+        key = (i + (1 << 30)) * (1 << 31) + (j + (1 << 30))
+        return np.mod(i, side) * side + np.mod(j, side), key
+
+    def add(self, x: F64, y: F64, stamp_ns: int) -> None:
+        """Remember points (odometry frame) seen at `stamp_ns`; one per cell, the newest."""
+        keep = np.isfinite(x) & np.isfinite(y)
+        x, y = x[keep], y[keep]
+        index, key = self._cells(x, y)
+        self._x[index] = x
+        self._y[index] = y
+        self._seen_ns[index] = stamp_ns
+        self._key[index] = key
+
+    def forget(self, robot_x: float, robot_y: float, now_ns: int) -> None:
+        """Drop points beyond `radius` from the robot or older than `max_age`."""
+        used = np.flatnonzero(self._key >= 0)
+        if not used.size:
+            return
+        far = np.hypot(self._x[used] - robot_x, self._y[used] - robot_y) > self.settings.radius
+        old = now_ns - self._seen_ns[used] > round(self.settings.max_age * 1e9)
+        self._key[used[far | old]] = -1
+
+    # ------------------------------------------------------------ the scan
+
+    def scan(self, sensor: Placement, grid: AngleGrid) -> F64:
+        """Ranges per slot of `grid` from the sensor placed at `sensor`; NaN: none."""
+        out = np.empty(grid.count, dtype=np.float64)
+        used = np.flatnonzero(self._key >= 0)
+        _PROJECT(
+            self._x,
+            self._y,
+            used,
+            sensor.x,
+            sensor.y,
+            sensor.xx,
+            sensor.xy,
+            sensor.yx,
+            sensor.yy,
+            grid.angle_min,
+            grid.angle_increment,
+            grid.count,
+            TWO_PI / abs(grid.angle_increment),
+            out,
+        )
+        return out
+
+    # ------------------------------------------------------------ clearing by the camera
+
+    def clear_seen(
+        self,
+        depth: npt.NDArray[np.generic],
+        camera: CameraModel,
+        odom_to_optical: Transform,
+        *,
+        slab: tuple[float, float],
+        range_min: float,
+        range_max: float,
+    ) -> int:
+        """Forget the points the camera sees free in `depth`; how many were forgotten.
+
+        `odom_to_optical` is the camera's optical frame in the odometry frame at the
+        image's stamp; heights are above the odometry frame's z = 0 (the floor).
+        """
+        used = np.flatnonzero(self._key >= 0)
+        if not used.size:
+            return 0
+        low, high = slab
+        heights = [low + (high - low) * f for f in CLEAR_HEIGHTS]
+        rotation = odom_to_optical.rotation_matrix
+        origin = np.asarray(odom_to_optical.translation)
+        x, y = self._x[used], self._y[used]
+        free_low = np.zeros(used.size, dtype=bool)
+        occupied = np.zeros(used.size, dtype=bool)
+        metres = depth.dtype != np.uint16
+        for rank, height in enumerate(heights):
+            world = np.stack([x - origin[0], y - origin[1], np.full_like(x, height - origin[2])])
+            optical = rotation.T @ world  # (3, N)
+            z = optical[2]
+            with np.errstate(divide='ignore', invalid='ignore'):
+                u_n, v_n = optical[0] / z, optical[1] / z
+            if camera.has_distortion:
+                from scanfuse.distortion import distort_normalized  # noqa: PLC0415
+
+                u_n, v_n = distort_normalized(u_n, v_n, camera.distortion_model, camera.distortion)
+            with np.errstate(invalid='ignore'):
+                u = np.rint(camera.fx * u_n + camera.cx)
+                v = np.rint(camera.fy * v_n + camera.cy)
+                inside = (
+                    (z >= range_min)
+                    & (z <= range_max)
+                    & (u >= 0)
+                    & (u < camera.width)
+                    & (v >= 0)
+                    & (v < camera.height)
+                )
+            pixels = depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+            measured = pixels.astype(np.float64) * (1.0 if metres else 1e-3)
+            valid = np.isfinite(measured) & (measured > 0.0)
+            expected = z[inside]
+            margin = CLEAR_MARGIN[0] + CLEAR_MARGIN[1] * expected + CLEAR_MARGIN[2] * expected**2
+            beyond = valid & (measured > expected + margin)
+            near = valid & (np.abs(measured - expected) <= margin)
+            where = np.flatnonzero(inside)
+            if rank == 0:
+                free_low[where[beyond]] = True
+            occupied[where[near]] = True
+        gone = used[free_low & ~occupied]
+        self._key[gone] = -1
+        self.cleared += int(gone.size)
+        return int(gone.size)
+
+
+def points_of_scan(scan: Scan, sensor: Placement) -> tuple[F64, F64]:
+    """The finite in-range readings of `scan` as points in the odometry frame."""
+    ranges = scan.ranges.astype(np.float64)
+    finite = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+    angles = scan.angles()[finite]
+    reach = ranges[finite]
+    return sensor.to_odom(reach * np.cos(angles), reach * np.sin(angles))

@@ -1,0 +1,279 @@
+"""Obstacle memory through the stream, on hand-worked geometry.
+
+A robot (camera 0.4 m up, pitched 15 degrees; LiDAR at its centre) stands at the origin.
+A box whose front face is 1.5 m ahead is seen at yaw 0. The LiDAR's plane passes over it:
+its scans are empty (+Inf) throughout, so whatever the fused scan holds of the box comes
+from the camera or from the memory.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.camera import CameraModel
+from scanfuse.config import FusionConfig
+from scanfuse.errors import InputError
+from scanfuse.memory import MemorySettings, ObstacleMemory, Placement
+from scanfuse.motion import PlanarPose
+from scanfuse.scan import AngleGrid, Scan
+from scanfuse.stream import FusionStream
+from scanfuse.transforms import Transform
+from tests.support.render import Box, camera_in_world, depth_image
+
+NS = 1_000_000_000
+CAMERA = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='optical')
+HEIGHT, PITCH = 0.4, math.radians(15.0)
+BOX = Box(1.5, 1.7, -0.1, 0.1, 0.2)
+NEAR_BOX = Box(1.0, 1.1, -0.3, 0.3, 0.45)  # hides BOX from the camera
+READINGS = 720  # half a degree
+
+
+def config(**changes) -> FusionConfig:
+    values = {
+        'use_tf': False,
+        'camera_height': HEIGHT,
+        'camera_pitch': PITCH,
+        'lidar_height': 0.3,
+        'obstacle_min_points': 1,
+        **changes,
+    }
+    return FusionConfig(**values)
+
+
+def lidar(stamp_ns: int) -> Scan:
+    return Scan(
+        angle_min=-math.pi,
+        angle_max=math.pi - 2 * math.pi / READINGS,
+        angle_increment=2 * math.pi / READINGS,
+        range_min=0.05,
+        range_max=10.0,
+        ranges=np.full(READINGS, np.inf, dtype=np.float32),
+        frame_id='laser',
+        stamp_ns=stamp_ns,
+    )
+
+
+class Robot:
+    """Feeds a stream as a robot would: odometry at 50 Hz, a frame 20 ms before each scan."""
+
+    def __init__(self, stream: FusionStream, world: list[Box]):
+        self.stream = stream
+        self.world = world
+        self.pose = PlanarPose(0.0, 0.0, 0.0)
+        self.now = NS
+        stream.add_camera_info(CAMERA)
+        stream.add_odometry(self.now, self.pose)
+
+    def move_to(self, pose: PlanarPose, seconds: float) -> None:
+        """Odometry of a smooth move to `pose` over `seconds` (50 Hz)."""
+        start, steps = self.pose, max(1, round(seconds * 50))
+        turn = math.remainder(pose.yaw - start.yaw, 2 * math.pi)
+        for k in range(1, steps + 1):
+            f = k / steps
+            self.now += NS // 50
+            self.pose = PlanarPose(
+                start.x + (pose.x - start.x) * f,
+                start.y + (pose.y - start.y) * f,
+                start.yaw + turn * f,
+            )
+            self.stream.add_odometry(self.now, self.pose)
+
+    def scan(self, *, camera: bool = True):
+        """One depth frame (20 ms old, same pose: the robot stands) and one LiDAR scan."""
+        self.now += NS // 50
+        self.stream.add_odometry(self.now, self.pose)
+        if camera:
+            view = camera_in_world(
+                self.pose.x, self.pose.y, self.pose.yaw, height=HEIGHT, pitch=PITCH
+            )
+            depth = depth_image(CAMERA, view, self.world)
+            self.stream.add_depth(self.now - 20_000_000, depth, self.now - 5_000_000)
+        (out,) = self.stream.add_scan(lidar(self.now), None, self.now + 1_000_000)
+        return out
+
+
+def reading_at(scan: Scan, bearing: float) -> tuple[float, int]:
+    """Nearest range within one slot of `bearing`, and the slot it is in."""
+    grid = scan.grid
+    slot = int(grid.slot_of(np.array([bearing]))[0])
+    window = [(slot + k) % len(scan) for k in (-1, 0, 1)]
+    values = scan.ranges[window]
+    best = int(np.nanargmin(np.where(np.isfinite(values), values, np.inf)))
+    return float(values[best]), window[best]
+
+
+def box_front_range() -> float:
+    return BOX.x_min  # straight ahead, the front face's nearest point
+
+
+def test_a_box_stays_behind_the_robot_after_a_half_turn_and_the_lidar_never_clears_it():
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    seen = robot.scan()
+    assert reading_at(seen.fused, 0.0)[0] == pytest.approx(box_front_range(), abs=0.02)
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)  # 1.57 rad/s in place
+    for _ in range(5):  # the LiDAR passes over it, scan after scan
+        behind = robot.scan()
+    value, slot = reading_at(behind.fused, math.pi)
+    assert value == pytest.approx(box_front_range(), abs=0.02)
+    expected_slot = int(behind.fused.grid.slot_of(np.array([math.pi]))[0])
+    assert min(abs(slot - expected_slot), READINGS - abs(slot - expected_slot)) <= 1
+    assert behind.instant is not None or behind.passed is not None
+    instant = behind.instant if behind.instant is not None else behind.lidar
+    assert not np.isfinite(reading_at(instant, math.pi)[0])  # the camera alone has nothing there
+    assert np.isfinite(behind.memory_scan.ranges).any()
+
+
+def test_the_camera_looking_at_the_empty_place_clears_it_within_one_frame():
+    world = [BOX]
+    stream = FusionStream(config())
+    robot = Robot(stream, world)
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)
+    robot.scan()
+    world.clear()  # someone takes the box away while the robot looks elsewhere
+    assert np.isfinite(reading_at(robot.scan().fused, math.pi)[0])  # still remembered
+    robot.move_to(PlanarPose(0.0, 0.0, 0.0), 2.0)
+    back = robot.scan()  # the first frame that sees the place
+    assert not reading_at(back.fused, 0.0)[0] < 2.0
+    assert len(stream.memory) == 0
+    assert stream.counts.memory_cleared > 0
+
+
+def test_a_point_hidden_behind_a_nearer_obstacle_is_not_cleared():
+    world = [BOX]
+    stream = FusionStream(config())
+    robot = Robot(stream, world)
+    robot.scan()
+    world.append(NEAR_BOX)
+    world.remove(BOX)  # gone, but the camera cannot see that: NEAR_BOX hides the place
+    robot.scan()
+    x, _ = stream.memory.points()
+    assert (np.abs(x - BOX.x_min) < 0.05).any()  # the far box's points are still remembered
+    assert (np.abs(x - NEAR_BOX.x_min) < 0.05).any()
+
+
+def test_points_older_than_memory_time_are_forgotten():
+    stream = FusionStream(config(memory_time=5.0))
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)
+    assert np.isfinite(reading_at(robot.scan().fused, math.pi)[0])
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 4.0)  # standing, 6 s after it was seen
+    late = robot.scan()
+    assert not np.isfinite(reading_at(late.fused, math.pi)[0])
+    assert len(stream.memory) == 0
+
+
+def test_points_beyond_memory_radius_are_forgotten():
+    stream = FusionStream(config(memory_radius=2.0))
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)
+    robot.move_to(PlanarPose(-0.6, 0.0, math.pi), 1.0)  # 2.1 m from the box's front face
+    out = robot.scan(camera=False)
+    assert len(stream.memory) == 0
+    assert out.memory_scan is not None
+    assert not np.isfinite(out.memory_scan.ranges).any()
+
+
+def test_without_odometry_there_is_no_memory():
+    stream = FusionStream(config())
+    stream.add_camera_info(CAMERA)
+    view = camera_in_world(0.0, 0.0, 0.0, height=HEIGHT, pitch=PITCH)
+    stream.add_depth(NS, depth_image(CAMERA, view, [BOX]), NS)
+    (out,) = stream.add_scan(lidar(NS + 10_000_000), None, NS + 10_000_000)
+    assert out.memory_scan is None
+    assert len(stream.memory) == 0
+
+
+def test_frozen_odometry_freezes_the_memory_then_drops_it_after_the_timeout():
+    stream = FusionStream(config(memory_odometry_timeout=1.0, max_odometry_extrapolation=0.1))
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    assert len(stream.memory) > 0
+    remembered = len(stream.memory)
+    # Odometry stops; scans go on (the camera too).
+    for k in range(2, 7):  # past max_odometry_extrapolation
+        stamp = robot.now + k * NS // 10
+        out = stream.add_scan(lidar(stamp), None, stamp)[0]
+        assert out.memory_scan is None  # not placed: frozen
+    assert len(stream.memory) == remembered
+    late = robot.now + 2 * NS
+    stream.add_scan(lidar(late), None, late)
+    assert len(stream.memory) == 0
+    assert stream.counts.memory_dropped == 1
+
+
+def test_an_odometry_jump_clears_the_memory():
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    assert len(stream.memory) > 0
+    robot.now += NS // 50
+    robot.pose = PlanarPose(10.0, 0.0, 0.0)  # a reset: 10 m in 20 ms
+    stream.add_odometry(robot.now, robot.pose)
+    robot.world.clear()
+    robot.scan(camera=False)
+    assert len(stream.memory) == 0
+    assert stream.counts.memory_dropped == 1
+
+
+def test_memory_off_at_run_time_drops_it_and_on_again_starts_empty():
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    assert len(stream.memory) > 0
+    stream.reconfigure(config(memory=False))
+    assert stream.memory is None
+    out = robot.scan()
+    assert out.memory_scan is None
+    stream.reconfigure(config(memory=True))
+    assert len(stream.memory) == 0
+    stream.reconfigure(config(memory=True, memory_time=30.0))  # the store is kept
+    robot.scan()
+    kept = len(stream.memory)
+    stream.reconfigure(config(memory=True, memory_time=10.0))
+    assert len(stream.memory) == kept
+
+
+def test_the_store_is_bounded_by_its_grid_whatever_is_added():
+    memory = ObstacleMemory(MemorySettings(radius=1.0, cell=0.05))
+    rng = np.random.default_rng(1)
+    for stamp in range(50):
+        x, y = rng.uniform(-50, 50, 10_000), rng.uniform(-50, 50, 10_000)
+        memory.add(x, y, stamp)
+    assert len(memory) <= MemorySettings(radius=1.0, cell=0.05).side ** 2
+    memory.forget(0.0, 0.0, 50)
+    x, y = memory.points()
+    assert np.all(np.hypot(x, y) <= 1.0)
+
+
+def test_nan_points_are_not_remembered():
+    memory = ObstacleMemory()
+    memory.add(np.array([np.nan, 1.0]), np.array([0.0, np.inf]), 0)
+    assert len(memory) == 0
+
+
+def test_projection_of_a_remembered_point_from_an_upside_down_lidar_is_mirrored():
+    memory = ObstacleMemory()
+    memory.add(np.array([0.0]), np.array([1.0]), 0)  # 1 m to the left of the base
+    grid = AngleGrid(-math.pi, 2 * math.pi / 360, 360)
+    upright = memory.scan(Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()), grid)
+    flipped = memory.scan(
+        Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform.from_rpy(math.pi, 0.0, 0.0)), grid
+    )
+    left = int(grid.slot_of(np.array([math.pi / 2]))[0])
+    right = int(grid.slot_of(np.array([-math.pi / 2]))[0])
+    assert upright[left] == pytest.approx(1.0)
+    assert flipped[right] == pytest.approx(1.0)  # its y axis points right
+
+
+def test_bad_memory_settings_are_errors():
+    with pytest.raises(InputError, match='memory radius must be a positive finite number'):
+        MemorySettings(radius=math.nan)
+    with pytest.raises(InputError, match='use a larger memory_cell'):
+        MemorySettings(radius=100.0, cell=0.01)
