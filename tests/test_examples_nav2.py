@@ -64,8 +64,8 @@ def leaves(tree: dict, prefix: str = ''):
 
 
 @pytest.fixture(scope='module')
-def published():
-    """The fused scans the node's core publishes for a scene seen by an RPLIDAR A2."""
+def run():
+    """What the node's core publishes for a scene seen by an RPLIDAR A2: fused and instant."""
     pytest.importorskip('mujoco')
     from scanfuse.sim.sensors import LIDARS  # MuJoCo-only module: imported after the skip
 
@@ -73,21 +73,34 @@ def published():
     live = LiveFusion(FusionConfig())
     messages = scene_messages(scene)
     start = messages[0][2]
-    fused = []
+    outputs = []
     for topic, _, log_time, raw in messages:
         now = (log_time - start) / 1e9
-        outputs = []
         if topic == '/scan':
-            outputs = live.on_scan(raw, now)
+            outputs.extend(live.on_scan(raw, now))
         elif topic == '/camera/depth/image_raw':
-            outputs = live.on_depth(raw, now)
+            outputs.extend(live.on_depth(raw, now))
         elif topic == '/camera/depth/camera_info':
             live.on_camera_info(raw, now)
         elif topic == '/tf_static':
             live.on_tf(raw, static=True)
-        fused.extend(scan_from_cdr(o.fused) for o in outputs if o.with_camera)
+    fused = [scan_from_cdr(o.fused) for o in outputs if o.with_camera]
+    instant = [scan_from_cdr(o.instant) for o in outputs if o.with_camera and o.instant]
     assert fused, 'the scene gave no fused scan'
+    return scene, fused, instant
+
+
+@pytest.fixture(scope='module')
+def published(run):
+    """(scene, fused scans): what /scan_fused carries."""
+    scene, fused, _ = run
     return scene, fused
+
+
+@pytest.fixture(scope='module')
+def instant(run):
+    """The instantaneous scans (instant_topic): what slam_toolbox reads."""
+    return run[2]
 
 
 # ---------------------------------------------------------------- topics and frames
@@ -100,7 +113,14 @@ def test_every_consumer_reads_the_fused_topic():
         assert obstacle_source(name)['data_type'] == 'LaserScan', name
     sources = [monitor()[source] for source in monitor()['observation_sources']]
     assert [(s['type'], s['topic']) for s in sources] == [('scan', fused_topic)]
-    assert slam()['scan_topic'] == fused_topic
+
+
+def test_slam_reads_the_scan_without_the_memory(instant):
+    # The memory (on by default) goes to the costmaps; SLAM takes the instantaneous scan,
+    # which the node publishes while the memory is on.
+    assert declared('memory') is True
+    assert slam()['scan_topic'] == declared('instant_topic') != declared('fused_topic')
+    assert instant, 'the node published no instantaneous scan'
 
 
 def test_frames_are_the_ones_scanfuse_uses(published):
@@ -170,12 +190,16 @@ def test_free_rays_clear_and_are_never_marked(published):
     assert max(ahead) < obstacle_source('local_costmap')['obstacle_max_range']
 
 
-def test_slam_range_covers_the_camera_and_is_not_clipped(published):
-    _, fused = published
+def test_slam_range_covers_the_camera_and_is_not_clipped(published, instant):
+    scene, fused = published
     max_laser_range = slam()['max_laser_range']
-    # Not below the camera's range_max (its far obstacles would be cut); not above the fused
+    # Not below the camera's range_max (its far obstacles would be cut); not above the
     # scan's range_max (slam_toolbox would clip it with a warning).
-    assert declared('range_max') <= max_laser_range <= min(scan.range_max for scan in fused)
+    assert declared('range_max') <= max_laser_range <= min(scan.range_max for scan in instant)
+    # The instantaneous scan has the fused scan's grid, frame and limits: one sensor to SLAM.
+    assert {(len(s), s.frame_id, s.range_max) for s in instant} == {
+        (scene.readings, 'laser', fused[0].range_max)
+    }
 
 
 def test_collision_monitor_keeps_the_fused_scan_however_long_the_node_waits():
