@@ -164,6 +164,9 @@ def test_clearing_stops_at_the_camera_range_and_marking_inside_it():
         assert source['clearing'] is True, name
         assert 0.0 < source['raytrace_max_range'] <= declared('range_max') - offset, name
         assert source['obstacle_max_range'] < source['raytrace_max_range'], name
+        # Remembered obstacles lie within memory_radius of the base origin: all are marked.
+        reach = declared('memory_radius') + math.hypot(config.lidar_x, config.lidar_y)
+        assert reach <= source['obstacle_max_range'], name
         assert source['obstacle_min_range'] == source['raytrace_min_range'] == 0.0, name
     # The local window holds a whole ray in every direction.
     local = costmap('local_costmap')
