@@ -303,7 +303,7 @@ def test_sigterm_while_simulating_leaves_nothing(tmp_path, name):
     ('ros_args', 'problem'),
     [
         # Ranges and types are the descriptors' (scanfuse.ros.params); rclpy checks overrides.
-        (['-p', 'max_time_offset:=9.0'], r'max_time_offset out of range .*; fix the -p override'),
+        (['-p', 'max_time_offset:=11.0'], r'max_time_offset out of range .*; fix the -p override'),
         (['-p', 'obstacle_min_points:=abc'], r"expecting type 'INTEGER'.*; fix the -p override"),
         (['-p', 'scan_topic:=bad topic'], r"Invalid topic name: .*'bad topic'; fix the topic"),
         (['-r', '__node:=bad.name'], r"Couldn't parse remap rule: '-r __node:=bad.name'.*; ROS"),

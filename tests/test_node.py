@@ -224,7 +224,7 @@ def test_every_fusion_setting_is_a_declared_parameter_with_a_description():
     for spec in specs.values():
         assert spec.description
     assert specs['method'].choices == ('row', 'obstacle')
-    assert specs['camera_pitch'].value_range == (-math.pi / 2, math.pi / 2)
+    assert specs['camera_pitch'].value_range == (-2 * math.pi, 2 * math.pi)
     assert specs['scan_row'].default == SCAN_ROW_CENTRE
     assert specs['scan_topic'].start_up_only
     assert not specs['min_obstacle_height'].start_up_only

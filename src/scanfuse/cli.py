@@ -129,6 +129,22 @@ def bag(
 
 
 @app.command()
+def params(
+    output: Annotated[
+        Path | None, typer.Option('--output', help='write the table here instead of printing it')
+    ] = None,
+) -> None:
+    """The parameter table (docs/parameters.md): every parameter, default, range, unit."""
+    from scanfuse.ros.params import parameters_markdown  # noqa: PLC0415
+
+    text = parameters_markdown()
+    if output is None:
+        typer.echo(text, nl=False)
+    else:
+        output.write_text(text, encoding='utf-8')
+
+
+@app.command()
 def simulate(
     out: Annotated[Path, typer.Option('--out', help='bag to write: NAME.mcap file or folder')],
     world: Annotated[str, typer.Option(help='room | bookshelf | barricade | clutter')] = (

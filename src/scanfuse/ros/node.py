@@ -140,7 +140,7 @@ def _load_defaults(params_file: str | None) -> tuple[FusionConfig, NodeSettings]
         return FusionConfig(), NodeSettings()
     values = read_ros_params(params_file)
     node_values: dict[str, Any] = {
-        name: values.pop(name) for name in ('pair_wait', 'lidar_timeout') if name in values
+        name: values.pop(name) for name in NodeSettings.model_fields if name in values
     }
     return FusionConfig.from_dict(values), settings_from_ros(node_values)
 

@@ -1,21 +1,34 @@
 """The node's ROS parameters: every `FusionConfig` field, plus the node's own few.
 
 Plain data here (names, types, ranges, whether a change is safe while running);
-`scanfuse.ros.node` turns it into rclpy `ParameterDescriptor`s. Values always
-pass through `FusionConfig.from_dict`, so a parameter set at run time is
-validated exactly as a parameter file is.
+`scanfuse.ros.node` turns it into rclpy `ParameterDescriptor`s and `scanfuse params`
+into docs/parameters.md. Values always pass through `FusionConfig.from_dict`, so a
+parameter set at run time is validated exactly as a parameter file is.
+
+Bounds have one home: the pydantic `Field`s (`ge`, `gt`, `le`, `lt`) of `FusionConfig`
+and `NodeSettings`. `DESCRIPTOR_LIMITS` only closes a side a Field leaves open, because an
+rclpy range needs both ends; a test fails when it restates a side a Field bounds.
+
+    python -m scanfuse.cli params --output docs/parameters.md   (or `scanfuse params ...`)
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, replace
 from enum import Enum
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import annotated_types
+from pydantic import BaseModel, ConfigDict, Field
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.sources import KINDS
+
+if TYPE_CHECKING:
+    from pydantic.fields import FieldInfo
 
 # scan_row None ("the principal-point row") as a ROS integer parameter.
 SCAN_ROW_CENTRE = -1
@@ -37,29 +50,12 @@ START_UP_ONLY = frozenset(
     }
 )
 
-# Inclusive ranges shown by `ros2 param describe` and enforced by rclpy.
-RANGES: dict[str, tuple[float, float]] = {
-    'scan_row': (SCAN_ROW_CENTRE, 100_000),
-    'scan_height': (1, 100_000),
-    'floor_margin': (0.0, 5.0),
-    'range_min': (0.0, 100.0),
-    'range_max': (0.01, 1000.0),
-    'min_obstacle_height': (-5.0, 5.0),
-    'max_obstacle_height': (-5.0, 5.0),
-    'camera_x': (-10.0, 10.0),
-    'camera_y': (-10.0, 10.0),
-    'camera_height': (-10.0, 10.0),
-    'camera_roll': (-math.pi, math.pi),
-    'camera_pitch': (-math.pi / 2, math.pi / 2),
-    'camera_yaw': (-math.pi, math.pi),
-    'lidar_x': (-10.0, 10.0),
-    'lidar_y': (-10.0, 10.0),
-    'lidar_height': (-10.0, 10.0),
-    'lidar_yaw': (-math.pi, math.pi),
-    'max_time_offset': (0.001, 5.0),
-    'camera_timeout': (0.01, 60.0),
-    'pair_wait': (0.0, 1.0),
-    'lidar_timeout': (0.05, 60.0),
+# (low, high) for the sides of a parameter that its Field leaves open (None: the Field's side).
+# rclpy ranges are inclusive and need both ends: these make `ros2 param describe` and rclpy's
+# checks of `-p` overrides cover every numeric parameter that has a sensible limit.
+DESCRIPTOR_LIMITS: dict[str, tuple[float | None, float | None]] = {
+    'scan_row': (None, 100_000),
+    'scan_height': (None, 100_000),
 }
 
 
@@ -73,6 +69,99 @@ class Kind(str, Enum):
 
 
 @dataclass(frozen=True)
+class Bounds:
+    """The limits of one numeric parameter; a side is None when unbounded."""
+
+    low: float | None = None
+    high: float | None = None
+    low_exclusive: bool = False
+    high_exclusive: bool = False
+
+    @property
+    def inclusive(self) -> tuple[float, float] | None:
+        """The rclpy range (always inclusive), when both sides are known.
+
+        An exclusive side (`gt=0`) becomes its inclusive end: rclpy lets the end value
+        through and `FusionConfig` refuses it with a message.
+        """
+        if self.low is None or self.high is None:
+            return None
+        return (self.low, self.high)
+
+    def contains(self, value: float) -> bool:
+        if self.low is not None and (
+            value < self.low or (self.low_exclusive and value == self.low)
+        ):
+            return False
+        return self.high is None or not (
+            value > self.high or (self.high_exclusive and value == self.high)
+        )
+
+    def text(self, number: Any = str) -> str:
+        """Interval notation: `[0.0, 1.0]`, `(0.0, 5.0]`, `>= 1`, `> 0.0`, or ''."""
+        if self.low is not None and self.high is not None:
+            left = '(' if self.low_exclusive else '['
+            right = ')' if self.high_exclusive else ']'
+            return f'{left}{number(self.low)}, {number(self.high)}{right}'
+        if self.low is not None:
+            return f'{">" if self.low_exclusive else ">="} {number(self.low)}'
+        if self.high is not None:
+            return f'{"<" if self.high_exclusive else "<="} {number(self.high)}'
+        return ''
+
+
+def _bound(value: Any) -> float:
+    """A Field's limit as a number; integers stay integers (they are shown and sent as such)."""
+    return value if isinstance(value, int) else float(value)
+
+
+def field_bounds(info: FieldInfo) -> Bounds:
+    """The `ge`/`gt`/`le`/`lt` of a pydantic Field."""
+    bounds = Bounds()
+    for item in info.metadata:
+        if isinstance(item, annotated_types.Ge):
+            bounds = replace(bounds, low=_bound(item.ge), low_exclusive=False)
+        elif isinstance(item, annotated_types.Gt):
+            bounds = replace(bounds, low=_bound(item.gt), low_exclusive=True)
+        elif isinstance(item, annotated_types.Le):
+            bounds = replace(bounds, high=_bound(item.le), high_exclusive=False)
+        elif isinstance(item, annotated_types.Lt):
+            bounds = replace(bounds, high=_bound(item.lt), high_exclusive=True)
+    return bounds
+
+
+def parameter_bounds(name: str, info: FieldInfo) -> Bounds:
+    """A parameter's bounds: its Field's, with `DESCRIPTOR_LIMITS` on the sides left open."""
+    bounds = field_bounds(info)
+    extra_low, extra_high = DESCRIPTOR_LIMITS.get(name, (None, None))
+    if bounds.low is None and extra_low is not None:
+        bounds = replace(bounds, low=extra_low, low_exclusive=False)
+    if bounds.high is None and extra_high is not None:
+        bounds = replace(bounds, high=extra_high, high_exclusive=False)
+    if name == 'scan_row' and bounds.low is not None:
+        # The ROS parameter also takes SCAN_ROW_CENTRE, its encoding of None.
+        bounds = replace(bounds, low=SCAN_ROW_CENTRE, low_exclusive=False)
+    return bounds
+
+
+# Units named in the descriptions (REP-103), most specific first.
+_UNITS = (
+    (re.compile(r'\b1/m\b'), '1/m'),
+    (re.compile(r'\bradians\b'), 'rad'),
+    (re.compile(r'\bmetres\b'), 'm'),
+    (re.compile(r'\bseconds\b'), 's'),
+)
+
+
+def unit_of(description: str) -> str:
+    """The unit a description names ('metres' -> 'm', ...), or '' when it names none."""
+    for pattern, unit in _UNITS:
+        if pattern.search(description):
+            return unit
+    return ''
+
+
+@dataclass(frozen=True)
 class ParamSpec:
     """One declared parameter."""
 
@@ -82,10 +171,19 @@ class ParamSpec:
     description: str
     start_up_only: bool
     choices: tuple[str, ...] = ()
+    bounds: Bounds = Bounds()
+    node_only_bounds: bool = False  # bounds differ from the Field's (DESCRIPTOR_LIMITS, scan_row)
 
     @property
     def value_range(self) -> tuple[float, float] | None:
-        return RANGES.get(self.name)
+        """Inclusive range for the descriptor (None for non-numbers and one-sided bounds)."""
+        if self.kind not in (Kind.INTEGER, Kind.DOUBLE):
+            return None
+        return self.bounds.inclusive
+
+    @property
+    def unit(self) -> str:
+        return unit_of(self.description) if self.kind in (Kind.INTEGER, Kind.DOUBLE) else ''
 
     @property
     def constraints(self) -> str:
@@ -100,32 +198,27 @@ class ParamSpec:
         return '; '.join(parts)
 
 
-@dataclass(frozen=True)
-class NodeSettings:
+class NodeSettings(BaseModel):
     """The node's own parameters (not part of the fusion)."""
 
-    pair_wait: float = 0.0
-    lidar_timeout: float = 1.0
+    model_config = ConfigDict(frozen=True, extra='forbid')
 
-
-NODE_PARAMS = (
-    ParamSpec(
-        'pair_wait',
-        Kind.DOUBLE,
-        NodeSettings.pair_wait,
-        'longest a scan waits for a depth frame stamped at or after it, seconds; '
-        '0 pairs with the frames already received (lowest latency), '
-        'a frame period or more pairs exactly as `scanfuse bag` does',
-        start_up_only=False,
-    ),
-    ParamSpec(
-        'lidar_timeout',
-        Kind.DOUBLE,
-        NodeSettings.lidar_timeout,
-        'LiDAR silence after which /diagnostics reports ERROR, seconds',
-        start_up_only=False,
-    ),
-)
+    pair_wait: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description=(
+            'longest a scan waits for a depth frame stamped at or after it, seconds; '
+            '0 pairs with the frames already received (lowest latency), '
+            'a frame period or more pairs exactly as `scanfuse bag` does'
+        ),
+    )
+    lidar_timeout: float = Field(
+        1.0,
+        ge=0.05,
+        le=60.0,
+        description='LiDAR silence after which /diagnostics reports ERROR, seconds',
+    )
 
 
 def _kind(value: Any) -> Kind:
@@ -147,13 +240,13 @@ def to_ros_value(name: str, value: Any) -> Any:
     return value
 
 
-def fusion_param_specs(defaults: FusionConfig) -> list[ParamSpec]:
-    """One spec per `FusionConfig` field, its default taken from `defaults`."""
+def _model_param_specs(model: BaseModel) -> list[ParamSpec]:
+    """One spec per field of a settings model, its default taken from `model`."""
     specs = []
-    for name, info in FusionConfig.model_fields.items():
+    for name, info in type(model).model_fields.items():
         if name in NESTED:
             continue
-        value = to_ros_value(name, getattr(defaults, name))
+        value = to_ros_value(name, getattr(model, name))
         annotation = info.annotation
         choices = (
             tuple(str(member.value) for member in annotation)
@@ -169,26 +262,23 @@ def fusion_param_specs(defaults: FusionConfig) -> list[ParamSpec]:
                 info.description or name,
                 start_up_only=name in START_UP_ONLY,
                 choices=choices,
+                bounds=parameter_bounds(name, info),
+                node_only_bounds=parameter_bounds(name, info) != field_bounds(info),
             )
         )
     return specs
 
 
+def fusion_param_specs(defaults: FusionConfig) -> list[ParamSpec]:
+    """One spec per `FusionConfig` field, its default taken from `defaults`."""
+    return _model_param_specs(defaults)
+
+
 def all_param_specs(
     defaults: FusionConfig, settings: NodeSettings | None = None
 ) -> list[ParamSpec]:
-    settings = settings or NodeSettings()
-    node_specs = [
-        ParamSpec(
-            spec.name,
-            spec.kind,
-            getattr(settings, spec.name),
-            spec.description,
-            spec.start_up_only,
-        )
-        for spec in NODE_PARAMS
-    ]
-    return [*fusion_param_specs(defaults), *node_specs]
+    """Every parameter the node declares: the fusion's, then the node's own."""
+    return [*_model_param_specs(defaults), *_model_param_specs(settings or NodeSettings())]
 
 
 def config_from_ros(values: dict[str, Any]) -> FusionConfig:
@@ -204,18 +294,18 @@ def config_from_ros(values: dict[str, Any]) -> FusionConfig:
 
 
 def settings_from_ros(values: dict[str, Any]) -> NodeSettings:
-    defaults = NodeSettings()
-    settings = NodeSettings(
-        pair_wait=float(values.get('pair_wait', defaults.pair_wait)),
-        lidar_timeout=float(values.get('lidar_timeout', defaults.lidar_timeout)),
-    )
-    for name in ('pair_wait', 'lidar_timeout'):
-        low, high = RANGES[name]
-        value = getattr(settings, name)
-        if not low <= value <= high:
-            msg = f'{name} must be in [{low}, {high}], got {value}'
+    """The node's own settings from ROS parameter values (ConfigError names what is wrong)."""
+    chosen = {}
+    for name, info in NodeSettings.model_fields.items():
+        if name not in values:
+            continue
+        value = float(values[name])
+        bounds = field_bounds(info)
+        if not bounds.contains(value):
+            msg = f'{name} must be in {bounds.text()}, got {value}'
             raise ConfigError(msg)
-    return settings
+        chosen[name] = value
+    return NodeSettings(**chosen)
 
 
 def check_change(current: dict[str, Any], changes: dict[str, Any]) -> str | None:
@@ -236,3 +326,80 @@ def check_change(current: dict[str, Any], changes: dict[str, Any]) -> str | None
     except ConfigError as err:
         return str(err)
     return None
+
+
+# ---------------------------------------------------------------- the parameter table
+
+REGENERATE = 'scanfuse params --output docs/parameters.md'
+
+
+def _number(value: float) -> str:
+    """A bound or default as people write it: 0.05, 3.0, 100000, -π/2."""
+    if isinstance(value, int):
+        return str(value)
+    for multiple, name in ((0.5, 'π/2'), (1.0, 'π'), (2.0, '2π')):
+        if math.isclose(abs(value), multiple * math.pi, rel_tol=1e-12):
+            return f'-{name}' if value < 0 else name
+    return f'{value:.1f}' if value.is_integer() else f'{value:g}'
+
+
+def _default(spec: ParamSpec) -> str:
+    if spec.kind is Kind.BOOL:
+        return f'`{str(spec.default).lower()}`'
+    if spec.kind is Kind.STRING:
+        return f'`{spec.default}`'
+    return f'`{_number(spec.default)}`'
+
+
+def _range(spec: ParamSpec) -> str:
+    if spec.choices:
+        return ' | '.join(f'`{choice}`' for choice in spec.choices)
+    text = spec.bounds.text(_number)
+    return f'{text} *' if text and spec.node_only_bounds else text
+
+
+def _cell(text: str) -> str:
+    return text.replace('|', '\\|').replace('\n', ' ')
+
+
+def markdown_table(specs: list[ParamSpec]) -> str:
+    """A markdown table: name, default, range, unit, start-up only, description."""
+    lines = [
+        '| parameter | default | range | unit | start-up only | description |',
+        '| --- | --- | --- | --- | --- | --- |',
+    ]
+    for spec in specs:
+        description = spec.description
+        if spec.name == 'scan_row':
+            description += f'; {SCAN_ROW_CENTRE} means the principal-point row'
+        cells = (
+            f'`{spec.name}`',
+            _default(spec),
+            _range(spec),
+            spec.unit,
+            'yes' if spec.start_up_only else '',
+            description,
+        )
+        lines.append('| ' + ' | '.join(_cell(cell) for cell in cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def parameters_markdown() -> str:
+    """docs/parameters.md: every parameter of the node with its defaults."""
+    intro = (
+        '# Parameters\n'
+        '\n'
+        'Every parameter the `scanfuse` node declares (`ros2 param describe /scanfuse NAME` '
+        'shows the same), with its default. A parameter file (`scanfuse: ros__parameters:`) '
+        'takes the same names, for the node and for `scanfuse bag --params`. Angles are '
+        'radians, lengths metres (REP-103). Ranges are inclusive where written with `[ ]`, '
+        "exclusive where written with `( )`. Ranges marked * are the node's only: its "
+        'descriptors close a side that `FusionConfig` leaves open, so rclpy refuses values '
+        'outside them but `scanfuse bag` does not. Start-up only: read when the node starts '
+        '(topics, publishers); a change at run time is refused.\n'
+        '\n'
+        f'Generated from `FusionConfig` and `NodeSettings` by `{REGENERATE}`; do not edit by '
+        'hand (tests/test_params_table.py fails when this file is stale).\n'
+        '\n'
+    )
+    return intro + markdown_table(all_param_specs(FusionConfig()))
