@@ -313,3 +313,19 @@ def test_nan_odometry_is_rejected_and_counted():
 def test_negative_pair_wait_is_an_error():
     with pytest.raises(InputError, match='pair_wait must be >= 0'):
         FusionStream(config(), pair_wait=-1.0)
+
+
+def test_a_tf_loop_is_a_malformed_transform_and_no_scan_is_lost():
+    from scanfuse.frames import StampedTransform
+
+    stream = standing(use_tf=True)
+    stream.add_transforms(
+        [StampedTransform('laser', 'odom', (0, 0, 0), (0, 0, 0, 1))], static=False
+    )
+    stream.add_transforms(
+        [StampedTransform('odom', 'laser', (0, 0, 0), (0, 0, 0, 1))], static=False
+    )
+    assert stream.counts.malformed == {'tf': 1}
+    stream.add_depth(NS, flat_depth(), NS)
+    outs = stream.add_scan(lidar_scan(NS), 1, NS + 1) + stream.finish()
+    assert [o.token for o in outs] == [1]

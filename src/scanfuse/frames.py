@@ -68,6 +68,12 @@ class TransformStore:
             raise TransformError(msg)
         if not static and child in self._static:
             return False
+        if self._parent.get(child) != parent and child in self._ancestors(parent):
+            msg = (
+                f'transform {parent!r} -> {child!r} would close a loop in the TF tree '
+                f'({child!r} is already an ancestor of {parent!r}); a frame has one parent'
+            )
+            raise TransformError(msg)
         pose = transform.matrix()
         if self._parent.get(child) == parent and np.array_equal(self._pose_in_parent[child], pose):
             return False
@@ -78,7 +84,11 @@ class TransformStore:
         return True
 
     def add_all(self, transforms: Iterable[StampedTransform], *, static: bool) -> set[str]:
-        """Record every transform; the child frames whose pose changed."""
+        """Record every transform; the child frames whose pose changed.
+
+        A bad transform (a loop, a frame its own parent) raises TransformError after the
+        good ones before it were kept.
+        """
         return {t.child for t in transforms if self.add(t, static=static)}
 
     @property
@@ -104,6 +114,13 @@ class TransformStore:
             target_chain[: target_chain.index(common)] + source_chain[: source_chain.index(common)]
         )
         return set(upto)
+
+    def _ancestors(self, frame: str) -> set[str]:
+        seen = {frame}
+        while frame in self._parent and self._parent[frame] not in seen:
+            frame = self._parent[frame]
+            seen.add(frame)
+        return seen
 
     def _chain_to_root(self, frame: str) -> list[str]:
         chain = [frame]
