@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scanfuse.bearing import fast_atan2
 from scanfuse.distortion import distortion_coefficients
 from scanfuse.errors import InputError
 from scanfuse.scan import TWO_PI
@@ -152,18 +153,7 @@ def _forget_and_project_loop(
         r = math.sqrt(x * x + y * y)
         if r == 0.0:
             continue
-        # atan2 by octant and a minimax polynomial (max error 2e-4 rad, 0.012 degrees: a
-        # point within that of a slot boundary may land next door): four times faster.
-        ax, ay = abs(x), abs(y)
-        a = min(ax, ay) / max(ax, ay)
-        a2 = a * a
-        bearing = ((-0.0464964749 * a2 + 0.15931422) * a2 - 0.327622764) * a2 * a + a
-        if ay > ax:
-            bearing = 1.5707963267948966 - bearing
-        if x < 0.0:
-            bearing = math.pi - bearing
-        if y < 0.0:
-            bearing = -bearing
+        bearing = fast_atan2(y, x)  # within 2e-4 rad: a slot boundary may shift that much
         # Slot k covers angle_min + (k +- 1/2) increment, counted round the whole turn.
         slot = math.floor((bearing - angle_min) / increment + 0.5)
         if slot < 0:

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 import numpy as np
 
 from scanfuse.errors import InputError, ScanfuseError, TransformError
+from scanfuse.extras import ExtraSources
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
@@ -217,6 +218,7 @@ class FusionStream(Generic[T]):
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
+        self.extras = ExtraSources(config)
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         if not config.memory:
             self.memory = None
@@ -232,16 +234,30 @@ class FusionStream(Generic[T]):
 
     # ------------------------------------------------------------ inputs
 
-    def add_camera_info(self, camera: CameraModel) -> None:
+    def add_camera_info(self, camera: CameraModel, source: str | None = None) -> None:
         """A (new) calibration: frames of the old one are dropped."""
+        if self._is_extra(source):
+            self.extras.add_camera_info(str(source), camera)
+            return
         if camera != self.camera:
             self.camera = camera
             self._frames.clear()
 
     def add_depth(
-        self, stamp_ns: int, depth: npt.NDArray[np.generic], now_ns: int, frame_id: str = ''
+        self,
+        stamp_ns: int,
+        depth: npt.NDArray[np.generic],
+        now_ns: int,
+        frame_id: str = '',
+        source: str | None = None,
     ) -> list[StreamOutput[T]]:
         """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`."""
+        if self._is_extra(source):
+            try:
+                self.extras.add_depth(str(source), stamp_ns, depth, frame_id)
+            except ScanfuseError as err:
+                self.note_malformed(f'depth image ({source})', err)
+            return self._release(now_ns)
         if self.camera is None:
             self._warn_once(
                 'depth before camera info',
@@ -262,8 +278,17 @@ class FusionStream(Generic[T]):
         self.counts.peak_frames = max(self.counts.peak_frames, len(self._frames))
         return self._release(now_ns)
 
-    def add_scan(self, scan: Scan, token: T, now_ns: int) -> list[StreamOutput[T]]:
-        """A LiDAR scan arrived at `now_ns`; `token` comes back with its output."""
+    def add_scan(
+        self, scan: Scan, token: T, now_ns: int, source: str | None = None
+    ) -> list[StreamOutput[T]]:
+        """A LiDAR scan arrived at `now_ns`; `token` comes back with its output.
+
+        Scans of the first LiDAR (`source` None or its name) make output scans; those of
+        other named LiDARs are kept for them.
+        """
+        if self._is_extra(source):
+            self.extras.add_scan(str(source), scan)
+            return self._release(now_ns)
         self.counts.scans += 1
         if self._started_ns is None:
             self._started_ns = now_ns
@@ -277,6 +302,24 @@ class FusionStream(Generic[T]):
         self._newest_scan_ns = max(scan.stamp_ns, self._newest_scan_ns or scan.stamp_ns)
         self._pending.append(_Pending(scan, token, now_ns, now_ns + self.pair_wait_ns))
         return self._release(now_ns)
+
+    def add_cloud(
+        self,
+        stamp_ns: int,
+        points: npt.NDArray[np.floating],
+        now_ns: int,
+        frame_id: str,
+        source: str,
+    ) -> list[StreamOutput[T]]:
+        """The x, y, z (N x 3, sensor frame) of a named point-cloud source."""
+        if not self._is_extra(source):
+            msg = f'no cloud source named {source!r}; clouds: {", ".join(self.extras.clouds)}'
+            raise InputError(msg)
+        self.extras.add_cloud(source, stamp_ns, points, frame_id)
+        return self._release(now_ns)
+
+    def _is_extra(self, source: str | None) -> bool:
+        return source is not None and source in self.extras
 
     def add_odometry(self, stamp_ns: int, pose: PlanarPose) -> None:
         """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF)."""
@@ -439,7 +482,7 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=result.timings,
         )
-        return self._remember(output, frame, choice.extrinsics)
+        return self._remember(self._with_extras(output), frame, choice.extrinsics)
 
     def _pass(
         self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
@@ -454,7 +497,51 @@ class FusionStream(Generic[T]):
             passed=reason,
             deskewed=deskewed,
         )
-        return self._remember(output, None, None)
+        return self._remember(self._with_extras(output), None, None)
+
+    # ------------------------------------------------------------ other sources
+
+    def _with_extras(self, output: StreamOutput[T]) -> StreamOutput[T]:
+        """`output` with what the other named sources add (see `scanfuse.extras`)."""
+        if not self.extras.names:
+            return output
+        base = output.fused if output.fused is not None else output.lidar
+        base_to_output = self.base_to_laser(output.lidar.frame_id)
+        lidars, obstacles = self.extras.contributions(base, base_to_output, self)
+        # A contribution with no reading at all changes nothing: keep the LiDAR's own bytes.
+        lidars = [scan for scan in lidars if not np.isnan(scan.ranges).all()]
+        obstacles = [scan for scan in obstacles if not np.isnan(scan.ranges).all()]
+        if not (lidars or obstacles):
+            return output
+        fused = base
+        for scan in (*lidars, *obstacles):
+            fused = merge_scans(fused, scan)
+        depth_scan = output.depth_scan
+        for scan in obstacles:
+            depth_scan = scan if depth_scan is None else merge_scans(depth_scan, scan)
+        return replace(output, fused=fused, depth_scan=depth_scan)
+
+    def mounting(self, frame: str, fallback: Transform) -> Transform | None:
+        """A sensor frame's pose in the base frame: from TF when TF knows the frame (None
+        when TF cannot relate it to the base), else `fallback` (the source's parameters)."""
+        name = frame_name(frame)
+        if not self.config.use_tf or name not in set(self.tf.frames):
+            return fallback
+        base = frame_name(self.config.base_frame)
+        try:
+            return Transform.from_matrix(self.tf.lookup(base, name))
+        except ScanfuseError:
+            return None
+
+    def motion_to(
+        self, source_ns: int, target_ns: int, base_to_sensor: Transform
+    ) -> PlanarMotion | None:
+        """Points of a sensor at `source_ns` to that sensor at `target_ns` (None: unknown)."""
+        motion, _ = self._motion(source_ns, target_ns, base_to_sensor)
+        return motion
+
+    def deskewed(self, scan: Scan) -> Scan:
+        return self._deskew(scan)[0]
 
     # ------------------------------------------------------------ memory
 

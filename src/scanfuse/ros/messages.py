@@ -457,3 +457,112 @@ def odometry_to_cdr(sample: OdometrySample, store: Typestore | None = None) -> b
         ),
     )
     return serialize(message, ODOMETRY, store)
+
+
+POINT_CLOUD = 'sensor_msgs/msg/PointCloud2'
+# sensor_msgs/PointField datatypes of coordinates scanfuse reads.
+_FLOAT_FIELDS = {7: 'f4', 8: 'f8'}
+
+
+@dataclass(frozen=True)
+class PointCloud:
+    """The x, y, z of a `sensor_msgs/PointCloud2` (N x 3 float, NaN points dropped)."""
+
+    points: npt.NDArray[np.floating]
+    frame_id: str
+    stamp_ns: int
+
+
+def cloud_from_msg(message: Any) -> PointCloud:
+    """x, y, z of every finite point; organized or not; float32 or float64; no Python loop."""
+    fields = {str(f.name): f for f in message.fields}
+    missing = [axis for axis in ('x', 'y', 'z') if axis not in fields]
+    if missing:
+        found = ', '.join(sorted(fields)) or 'none'
+        msg = (
+            f'PointCloud2 in frame {message.header.frame_id!r} has no {", ".join(missing)} '
+            f'field (fields: {found}); scanfuse needs x, y and z'
+        )
+        raise MessageError(msg)
+    width, height = int(message.width), int(message.height)
+    point_step, row_step = int(message.point_step), int(message.row_step)
+    order = '>' if message.is_bigendian else '<'
+    formats, offsets = [], []
+    for axis in ('x', 'y', 'z'):
+        field = fields[axis]
+        kind = _FLOAT_FIELDS.get(int(field.datatype))
+        if kind is None or int(field.count) != 1:
+            msg = (
+                f'PointCloud2 field {axis} has datatype {int(field.datatype)} and count '
+                f'{int(field.count)}; scanfuse reads FLOAT32 (7) or FLOAT64 (8) coordinates'
+            )
+            raise MessageError(msg)
+        formats.append(order + kind)
+        offsets.append(int(field.offset))
+        if int(field.offset) + np.dtype(kind).itemsize > point_step:
+            msg = (
+                f'PointCloud2 field {axis} at offset {int(field.offset)} does not fit in a '
+                f'point_step of {point_step} bytes; the message is inconsistent'
+            )
+            raise MessageError(msg)
+    data = np.frombuffer(message.data, dtype=np.uint8)
+    if width * point_step > row_step or row_step * height > data.size:
+        msg = (
+            f'PointCloud2 of {width}x{height} points with point_step {point_step} and row_step '
+            f'{row_step} needs {row_step * height} bytes, got {data.size}'
+        )
+        raise MessageError(msg)
+    rows = data[: row_step * height].reshape(height, row_step)[:, : width * point_step]
+    layout = np.dtype(
+        {'names': ['x', 'y', 'z'], 'formats': formats, 'offsets': offsets, 'itemsize': point_step}
+    )
+    structured = np.ascontiguousarray(rows).reshape(-1).view(layout)
+    points = np.stack([structured['x'], structured['y'], structured['z']], axis=1).astype(
+        np.float64
+    )
+    finite = np.isfinite(points).all(axis=1)
+    return PointCloud(
+        points[finite],
+        frame_name(str(message.header.frame_id)),
+        stamp_to_ns(message.header.stamp),
+    )
+
+
+def cloud_from_cdr(raw: RawMessage, store: Typestore | None = None) -> PointCloud:
+    return cloud_from_msg(deserialize(raw, POINT_CLOUD, store))
+
+
+def cloud_to_cdr(
+    points: npt.NDArray[np.floating],
+    *,
+    frame_id: str,
+    stamp_ns: int,
+    dtype: str = 'f4',
+    extra_bytes: int = 4,
+    store: Typestore | None = None,
+) -> bytes:
+    """An unorganized PointCloud2 of `points` (x, y, z; `dtype` f4 or f8; padding after)."""
+    store = store or typestore()
+    types = store.types
+    size = np.dtype(dtype).itemsize
+    step = 3 * size + extra_bytes
+    buffer = np.zeros((len(points), step), dtype=np.uint8)
+    coordinates = np.asarray(points, dtype='<' + dtype)
+    buffer[:, : 3 * size] = coordinates.view(np.uint8).reshape(len(points), 3 * size)
+    datatype = 7 if dtype == 'f4' else 8
+    fields = [
+        types['sensor_msgs/msg/PointField'](name=axis, offset=i * size, datatype=datatype, count=1)
+        for i, axis in enumerate('xyz')
+    ]
+    message = types[POINT_CLOUD](
+        header=_header(store, stamp_ns, frame_id),
+        height=1,
+        width=len(points),
+        fields=fields,
+        is_bigendian=False,
+        point_step=step,
+        row_step=step * len(points),
+        data=buffer.reshape(-1),
+        is_dense=False,
+    )
+    return serialize(message, POINT_CLOUD, store)

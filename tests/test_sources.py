@@ -1,0 +1,344 @@
+"""Several LiDARs, cameras and point clouds into one scan, on hand-worked geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.camera import CameraModel
+from scanfuse.config import FusionConfig
+from scanfuse.errors import ConfigError
+from scanfuse.frames import StampedTransform
+from scanfuse.scan import Scan
+from scanfuse.stream import FusionStream
+from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+from tests.support.render import Box, depth_image
+
+NS = 1_000_000_000
+HALF = 2.0  # the square room: walls at x = +-2 and y = +-2 around the base origin
+CAMERA = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='front_optical')
+PITCH = math.radians(15.0)
+
+
+def square_room_ranges(origin, yaw, angles):
+    """Distance from `origin` along world bearings yaw + angles to the square's walls."""
+    world = yaw + angles
+    dx, dy = np.cos(world), np.sin(world)
+    with np.errstate(divide='ignore'):
+        tx = np.where(dx > 0, (HALF - origin[0]) / dx, (-HALF - origin[0]) / dx)
+        ty = np.where(dy > 0, (HALF - origin[1]) / dy, (-HALF - origin[1]) / dy)
+    return np.minimum(np.abs(tx), np.abs(ty))
+
+
+def lidar_scan(origin, yaw, count, fov, frame, stamp=NS, *, grid_fov=None):
+    """A LiDAR at `origin` with heading `yaw` seeing the room over `fov` (NaN elsewhere)."""
+    grid_fov = fov if grid_fov is None else grid_fov
+    increment = grid_fov / count
+    angle_min = -grid_fov / 2
+    angles = angle_min + increment * np.arange(count)
+    ranges = square_room_ranges(origin, yaw, angles)
+    ranges[np.abs(angles) > fov / 2] = np.nan
+    return Scan(
+        angle_min=angle_min,
+        angle_max=angle_min + increment * (count - 1),
+        angle_increment=increment,
+        range_min=0.05,
+        range_max=20.0,
+        ranges=ranges.astype(np.float32),
+        frame_id=frame,
+        stamp_ns=stamp,
+    )
+
+
+def two_lidars(**changes) -> FusionConfig:
+    values = {
+        'use_tf': False,
+        'memory': False,
+        'lidars': ['front', 'rear'],
+        'front': {'topic': '/front/scan', 'x': 0.3, 'y': 0.2, 'z': 0.2, 'yaw': math.pi / 4},
+        'rear': {'topic': '/rear/scan', 'x': -0.3, 'y': -0.2, 'z': 0.2, 'yaw': -3 * math.pi / 4},
+        **changes,
+    }
+    return FusionConfig.from_dict(values)
+
+
+def test_two_lidars_at_opposite_corners_give_one_scan_true_from_the_output_origin():
+    stream: FusionStream[int] = FusionStream(two_lidars())
+    fov = math.radians(270)
+    front_origin, front_yaw = (0.3, 0.2), math.pi / 4
+    rear_origin, rear_yaw = (-0.3, -0.2), -3 * math.pi / 4
+    # The output is the front LiDAR's 0.1-degree 360-degree grid; it sees 270 degrees.
+    front = lidar_scan(front_origin, front_yaw, 3600, fov, 'front', grid_fov=2 * math.pi)
+    rear = lidar_scan(rear_origin, rear_yaw, 5400, fov, 'rear')
+    assert stream.add_scan(rear, 0, NS, source='rear') == []
+    (out,) = stream.add_scan(front, 1, NS + 1)
+    truth = square_room_ranges(front_origin, front_yaw, front.angles())
+    assert out.fused is not None
+    assert np.isfinite(out.fused.ranges).all()  # the rear LiDAR fills the front one's gap
+    np.testing.assert_allclose(out.fused.ranges, truth, atol=0.01)
+    assert stream.extras.counts.used == {'rear': 1}
+
+
+def test_a_source_that_never_arrives_is_passed_over_and_counted():
+    stream: FusionStream[int] = FusionStream(two_lidars())
+    front = lidar_scan((0.3, 0.2), math.pi / 4, 360, math.radians(270), 'front')
+    (out,) = stream.add_scan(front, 1, NS)
+    assert out.fused is None  # the front LiDAR alone, unchanged
+    assert stream.extras.counts.missing == {'rear': 1}
+
+
+def test_a_stale_source_beyond_its_max_time_offset_is_not_used():
+    config = two_lidars(rear={'topic': '/rear/scan', 'x': -0.3, 'max_time_offset': 0.05})
+    stream: FusionStream[int] = FusionStream(config)
+    rear = lidar_scan((-0.3, 0.0), 0.0, 360, math.radians(270), 'rear', stamp=NS)
+    stream.add_scan(rear, 0, NS, source='rear')
+    front = lidar_scan(
+        (0.3, 0.2), math.pi / 4, 360, math.radians(270), 'front', stamp=NS + NS // 10
+    )
+    (out,) = stream.add_scan(front, 1, NS + NS // 10)
+    assert out.fused is None
+    assert stream.extras.counts.missing == {'rear': 1}
+
+
+# ------------------------------------------------------------------ cameras and clouds
+
+BOX_AHEAD = Box(1.5, 1.7, -0.1, 0.1, 0.2)
+BOX_BEHIND = Box(-1.7, -1.5, -0.1, 0.1, 0.2)
+
+
+def base_lidar(stamp=NS, count=720) -> Scan:
+    increment = 2 * math.pi / count
+    return Scan(
+        angle_min=-math.pi,
+        angle_max=math.pi - increment,
+        angle_increment=increment,
+        range_min=0.05,
+        range_max=10.0,
+        ranges=np.full(count, np.inf, dtype=np.float32),
+        frame_id='laser',
+        stamp_ns=stamp,
+    )
+
+
+def camera_pose(yaw: float) -> Transform:
+    return Transform.from_rpy(0.0, PITCH, yaw, (0.0, 0.0, 0.4)) @ BODY_TO_OPTICAL
+
+
+def reading(scan: Scan, bearing: float) -> float:
+    slot = int(scan.grid.slot_of(np.array([bearing]))[0])
+    window = scan.ranges[[(slot + k) % len(scan) for k in (-1, 0, 1)]]
+    return float(np.where(np.isfinite(window), window, np.inf).min())  # inf: nothing there
+
+
+def front_and_rear_cameras(**changes) -> FusionConfig:
+    values = {
+        'use_tf': False,
+        'memory': False,
+        'obstacle_min_points': 1,
+        'lidar_height': 0.3,
+        'cameras': ['front_depth', 'rear_depth'],
+        'front_depth': {
+            'depth_topic': '/front/depth',
+            'camera_info_topic': '/front/info',
+            'z': 0.4,
+            'pitch': PITCH,
+        },
+        'rear_depth': {
+            'depth_topic': '/rear/depth',
+            'camera_info_topic': '/rear/info',
+            'z': 0.4,
+            'pitch': PITCH,
+            'yaw': math.pi,
+        },
+        **changes,
+    }
+    return FusionConfig.from_dict(values)
+
+
+def test_a_rear_cameras_obstacle_lands_at_bearing_pi():
+    stream: FusionStream[int] = FusionStream(front_and_rear_cameras())
+    rear_camera = CameraModel.from_intrinsics(
+        320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='rear_optical'
+    )
+    stream.add_camera_info(CAMERA)
+    stream.add_camera_info(rear_camera, source='rear_depth')
+    stream.add_depth(
+        NS - 10, depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD]), NS, 'front_optical'
+    )
+    stream.add_depth(
+        NS - 20,
+        depth_image(rear_camera, camera_pose(math.pi), [BOX_BEHIND]),
+        NS,
+        'rear_optical',
+        source='rear_depth',
+    )
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.fused is not None
+    assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.02)  # the front camera's box
+    assert reading(out.fused, math.pi) == pytest.approx(1.5, abs=0.02)  # the rear camera's
+    assert reading(out.depth_scan, math.pi) == pytest.approx(1.5, abs=0.02)
+
+
+def back_projected(depth_mm: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """The depth image's pixels as points in its optical frame (x right, y down, z ahead)."""
+    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
+    z = depth_mm.astype(np.float64) / 1000.0
+    keep = z > 0
+    return np.stack([x_n[keep] * z[keep], y_n[keep] * z[keep], z[keep]], axis=1)
+
+
+def cloud_config(**changes) -> FusionConfig:
+    values = {
+        'use_tf': False,
+        'memory': False,
+        'lidar_height': 0.3,
+        'camera_height': 0.4,
+        'camera_pitch': PITCH,
+        'obstacle_min_points': 1,
+        'clouds': ['points'],
+        'points': {'topic': '/points'},
+        **changes,
+    }
+    return FusionConfig.from_dict(values)
+
+
+def test_a_cloud_of_the_scene_gives_the_scan_its_depth_image_gives():
+    depth = depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD])
+    by_camera: FusionStream[int] = FusionStream(cloud_config())
+    by_camera.add_camera_info(CAMERA)
+    by_camera.add_depth(NS - 10, depth, NS, 'front_optical')
+    (camera_out,) = by_camera.add_scan(base_lidar(), 1, NS + 1)
+    # The same pixels as a cloud in the optical frame, placed by the same mounting (TF).
+    by_cloud: FusionStream[int] = FusionStream(cloud_config(use_tf=True))
+    optical = camera_pose(0.0)
+    by_cloud.add_transforms(
+        [
+            StampedTransform('base_link', 'laser', (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0)),
+            StampedTransform('base_link', 'cloud_optical', optical.translation, optical.rotation),
+        ],
+        static=True,
+    )
+    points = back_projected(depth, CAMERA)
+    by_cloud.add_cloud(NS - 10, points, NS, 'cloud_optical', 'points')
+    (cloud_out,) = by_cloud.add_scan(base_lidar(), 1, NS + 1)
+    camera_ranges, cloud_ranges = camera_out.fused.ranges, cloud_out.fused.ranges
+    obstacle = np.isfinite(camera_ranges)
+    assert obstacle.sum() >= 10
+    assert np.array_equal(obstacle, np.isfinite(cloud_ranges))
+    np.testing.assert_allclose(cloud_ranges[obstacle], camera_ranges[obstacle], atol=0.005)
+
+
+def test_a_cloud_in_a_frame_turned_90_degrees_is_placed_by_its_mounting():
+    # The cloud frame is the base frame turned +90 degrees about z: a point 1.5 m ahead of
+    # the robot is at (0, -1.5) in it.
+    stream: FusionStream[int] = FusionStream(
+        cloud_config(points={'topic': '/points', 'yaw': math.pi / 2})
+    )
+    ys = np.linspace(-0.1, 0.1, 21)
+    zs = np.linspace(0.05, 0.2, 6)
+    front_face = np.array([(-y, -1.5, z) for y in ys for z in zs])
+    stream.add_cloud(NS, front_face, NS, 'cloud', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
+    assert not reading(out.fused, -math.pi / 2) < 5.0
+
+
+def test_cloud_points_outside_the_slab_are_ignored():
+    stream: FusionStream[int] = FusionStream(cloud_config())
+    overhang = np.array([(1.5, 0.0, 1.2), (1.5, 0.05, 1.3)])  # a table top above the robot
+    floor = np.array([(1.0, 0.0, 0.0)])
+    stream.add_cloud(NS, np.vstack([overhang, floor]), NS, 'base_link', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.fused is None  # nothing added
+
+
+# ------------------------------------------------------------------ an upside-down LiDAR
+
+
+def test_an_upside_down_lidar_by_parameters_gives_the_scan_tf_gives():
+    left_box = Box(1.4, 1.6, 0.4, 0.6, 0.2)  # ahead and to the left of the robot
+    depth = depth_image(CAMERA, camera_pose(0.0), [left_box])
+    common = {
+        'memory': False,
+        'camera_height': 0.4,
+        'camera_pitch': PITCH,
+        'lidar_height': 0.3,
+        'obstacle_min_points': 1,
+    }
+    by_params: FusionStream[int] = FusionStream(
+        FusionConfig(use_tf=False, lidar_roll=math.pi, **common)
+    )
+    by_tf: FusionStream[int] = FusionStream(FusionConfig(use_tf=True, **common))
+    flipped = Transform.from_rpy(math.pi, 0.0, 0.0, (0.0, 0.0, 0.3))
+    by_tf.add_transforms(
+        [
+            StampedTransform('base_link', 'laser', flipped.translation, flipped.rotation),
+            StampedTransform(
+                'base_link',
+                'front_optical',
+                camera_pose(0.0).translation,
+                camera_pose(0.0).rotation,
+            ),
+        ],
+        static=True,
+    )
+    outs = []
+    for stream in (by_params, by_tf):
+        stream.add_camera_info(CAMERA)
+        stream.add_depth(NS - 10, depth, NS, 'front_optical')
+        outs.append(stream.add_scan(base_lidar(), 1, NS + 1)[0].fused)
+    np.testing.assert_array_equal(outs[0].ranges, outs[1].ranges)
+    # Seen from the upside-down scanner the box is on its right: a negative bearing.
+    bearing = math.atan2(0.5, 1.4)
+    assert reading(outs[0], -bearing) == pytest.approx(math.hypot(1.4, 0.5), abs=0.05)
+    assert not reading(outs[0], bearing) < 5.0
+
+
+# ------------------------------------------------------------------ configuration
+
+
+def test_sources_come_nested_or_dotted_and_the_first_fills_the_one_source_parameters():
+    nested = two_lidars()
+    dotted = FusionConfig.from_dict(
+        {
+            'use_tf': False,
+            'memory': False,
+            'lidars': ['front', 'rear'],
+            'front.topic': '/front/scan',
+            'front.x': 0.3,
+            'front.y': 0.2,
+            'front.z': 0.2,
+            'front.yaw': math.pi / 4,
+            'rear.topic': '/rear/scan',
+            'rear.x': -0.3,
+            'rear.y': -0.2,
+            'rear.z': 0.2,
+            'rear.yaw': -3 * math.pi / 4,
+        }
+    )
+    assert nested == dotted
+    assert (nested.scan_topic, nested.lidar_x, nested.lidar_height) == ('/front/scan', 0.3, 0.2)
+    assert nested.lidar_yaw == pytest.approx(math.pi / 4)
+    round_trip = FusionConfig.from_dict(nested.to_ros_params()['scanfuse']['ros__parameters'])
+    assert round_trip == nested
+
+
+def test_a_section_nobody_lists_is_an_error():
+    with pytest.raises(ConfigError, match=r'source sections rear are not listed'):
+        FusionConfig.from_dict(
+            {'lidars': ['front'], 'front': {'topic': '/a'}, 'rear': {'topic': '/b'}}
+        )
+
+
+def test_two_sources_on_one_topic_is_an_error():
+    with pytest.raises(ConfigError, match=r'two sources listen on /scan'):
+        FusionConfig.from_dict(
+            {'lidars': ['a', 'b'], 'a': {'topic': '/scan'}, 'b': {'topic': '/scan'}}
+        )
+
+
+def test_a_source_without_its_topic_is_an_error():
+    with pytest.raises(ConfigError, match=r'sources\.clouds\.0\.topic'):
+        FusionConfig.from_dict({'clouds': ['livox'], 'livox': {'min_height': 0.1}})
