@@ -342,3 +342,91 @@ def test_two_sources_on_one_topic_is_an_error():
 def test_a_source_without_its_topic_is_an_error():
     with pytest.raises(ConfigError, match=r'sources\.clouds\.0\.topic'):
         FusionConfig.from_dict({'clouds': ['livox'], 'livox': {'min_height': 0.1}})
+
+
+# ------------------------------------------------------------------ fragmented LiDARs
+
+FRAGMENTS = (500, 500, 500, 500, 500, 250)  # a PSENscan revolution: 2750 readings
+STEP = math.radians(0.1)
+
+
+def fragments(revolution: int, start_ns: int) -> list[Scan]:
+    """One revolution of 275 degrees in six pieces, 5 ms apart, of a wall 2 m around."""
+    pieces, first = [], -math.radians(137.5)
+    for index, count in enumerate(FRAGMENTS):
+        angle_min = first + STEP * sum(FRAGMENTS[:index])
+        ranges = np.full(count, 2.0 + 0.01 * revolution, dtype=np.float32)
+        pieces.append(
+            Scan(
+                angle_min=angle_min,
+                angle_max=angle_min + STEP * (count - 1),
+                angle_increment=STEP,
+                range_min=0.05,
+                range_max=10.0,
+                ranges=ranges,
+                frame_id='laser',
+                stamp_ns=start_ns + index * 5_000_000,
+            )
+        )
+    return pieces
+
+
+def depth_stream(**changes) -> FusionStream[int]:
+    config = FusionConfig(
+        use_tf=False,
+        memory=False,
+        camera_height=0.4,
+        camera_pitch=PITCH,
+        lidar_height=0.3,
+        obstacle_min_points=1,
+        **changes,
+    )
+    stream: FusionStream[int] = FusionStream(config)
+    stream.add_camera_info(CAMERA)
+    stream.add_depth(NS, depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD]), NS, 'front_optical')
+    return stream
+
+
+def test_six_fragments_assembled_equal_the_fragments_fused_one_by_one_side_by_side():
+    one_by_one = depth_stream()
+    separate = [
+        one_by_one.add_scan(piece, k, NS + k)[0] for k, piece in enumerate(fragments(0, NS))
+    ]
+    assert [len(out.fused or out.lidar) for out in separate] == list(FRAGMENTS)
+    side_by_side = np.concatenate([(out.fused or out.lidar).ranges for out in separate])
+
+    assembling = depth_stream(assemble_fragments=True)
+    outs = []
+    for revolution in range(2):
+        for k, piece in enumerate(fragments(revolution, NS + revolution * 30_000_000)):
+            outs += assembling.add_scan(piece, 10 * revolution + k, NS + 1000 * revolution + k)
+    # The first revolution is known complete when the second starts; the second, once the
+    # first taught the count, with its own last piece.
+    assert [out.token for out in outs] == [5, 15]
+    first = outs[0].fused
+    assert len(first) == sum(FRAGMENTS)
+    assert first.angle_min == fragments(0, NS)[0].angle_min
+    assert first.stamp_ns == NS
+    np.testing.assert_array_equal(first.ranges, side_by_side)
+    assert reading(first, 0.0) == pytest.approx(1.5, abs=0.02)  # the camera's box
+
+
+def test_a_revolution_missing_a_fragment_is_padded_to_the_learned_count():
+    stream = depth_stream(assemble_fragments=True, fragment_timeout=0.05)
+    outs = []
+    for k, piece in enumerate(fragments(0, NS)):
+        outs += stream.add_scan(piece, k, NS + k)
+    second = fragments(1, NS + 30_000_000)
+    del second[3]  # lost on the wire
+    for k, piece in enumerate(second):
+        outs += stream.add_scan(piece, 10 + k, NS + 1000 + k)
+    outs += stream.add_scan(fragments(2, NS + 60_000_000)[0], 20, NS + 2000)
+    assert len(outs) == 3  # [0..5], then [0, 1, 2] and [4, 5] of the gapped revolution
+    for out in outs:
+        scan = out.fused or out.lidar
+        assert len(scan) == sum(FRAGMENTS)  # slam_toolbox sees one reading count
+        assert scan.angle_min == pytest.approx(fragments(0, NS)[0].angle_min)
+    gapped = np.stack([o.lidar.ranges for o in outs[1:]])
+    missing = slice(sum(FRAGMENTS[:3]), sum(FRAGMENTS[:4]))
+    assert np.isnan(gapped[:, missing]).all()  # the LiDAR has nothing for the lost piece
+    assert stream.assembler.padded == 2

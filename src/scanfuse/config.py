@@ -144,6 +144,16 @@ class FusionConfig(BaseModel):
     )
     lidar_pitch: float = _radians(0.0, 'LiDAR pitch in the base frame, radians')
     lidar_yaw: float = _radians(0.0, 'LiDAR yaw in the base frame, radians')
+    assemble_fragments: bool = Field(
+        default=False,
+        description=(
+            'LiDAR publishes each revolution as several scans (PSENscan): assemble them and '
+            'fuse once per revolution'
+        ),
+    )
+    fragment_timeout: float = Field(
+        0.2, gt=0.0, le=10.0, description='seconds a fragmented revolution may take'
+    )
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
@@ -302,6 +312,9 @@ def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
             primary[name] = first.get(axis, 0.0)
         for angle in ('roll', 'pitch', 'yaw'):
             primary[f'lidar_{angle}'] = first.get(angle, 0.0)
+        for name in ('assemble_fragments', 'fragment_timeout'):
+            if name in first:
+                primary[name] = first[name]
     if cameras and isinstance(cameras[0], dict):
         first = cameras[0]
         primary['depth_topic'] = first.get('depth_topic')

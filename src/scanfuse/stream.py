@@ -44,6 +44,7 @@ import numpy as np
 
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.extras import ExtraSources
+from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
@@ -163,6 +164,7 @@ class _Pending(Generic[T]):
     token: T
     arrived_ns: int
     deadline_ns: float
+    assembled: bool = False  # made of fragments: no single message's bytes stand for it
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,9 @@ class FusionStream(Generic[T]):
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
         self.extras = ExtraSources(config)
+        self.assembler: FragmentAssembler[T] | None = (
+            FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
+        )
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         if not config.memory:
             self.memory = None
@@ -289,6 +294,16 @@ class FusionStream(Generic[T]):
         if self._is_extra(source):
             self.extras.add_scan(str(source), scan)
             return self._release(now_ns)
+        if self.assembler is None:
+            return self._enqueue(scan, token, now_ns, assembled=False)
+        out = []
+        for revolution, last_token in self.assembler.add(scan, token):
+            out += self._enqueue(revolution, last_token, now_ns, assembled=True)
+        return out or self._release(now_ns)
+
+    def _enqueue(
+        self, scan: Scan, token: T, now_ns: int, *, assembled: bool
+    ) -> list[StreamOutput[T]]:
         self.counts.scans += 1
         if self._started_ns is None:
             self._started_ns = now_ns
@@ -300,7 +315,9 @@ class FusionStream(Generic[T]):
                 'with the frame nearest its own stamp, in arrival order',
             )
         self._newest_scan_ns = max(scan.stamp_ns, self._newest_scan_ns or scan.stamp_ns)
-        self._pending.append(_Pending(scan, token, now_ns, now_ns + self.pair_wait_ns))
+        self._pending.append(
+            _Pending(scan, token, now_ns, now_ns + self.pair_wait_ns, assembled=assembled)
+        )
         return self._release(now_ns)
 
     def add_cloud(
@@ -491,7 +508,8 @@ class FusionStream(Generic[T]):
         output = StreamOutput(
             token=pending.token,
             lidar=lidar,
-            fused=lidar if deskewed else None,
+            # A scan that is not one received message as it came is published anew.
+            fused=lidar if deskewed or pending.assembled else None,
             depth_scan=None,
             arrived_ns=pending.arrived_ns,
             passed=reason,
