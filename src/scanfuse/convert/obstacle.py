@@ -511,6 +511,23 @@ class ObstacleProjector:
         self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
         self._warm_up()
 
+    def _seen(self, depth: npt.NDArray[Any]) -> Mask:
+        """`ViewCoverage.seen` of this frame's valid tile centres, compiled when it can be."""
+        coverage = self.coverage
+        if self._kernel is None or depth.dtype not in (np.uint16, np.float32):
+            return coverage.seen(self._valid_centres(depth))
+        if depth.dtype == np.uint16:
+            low, high = (np.uint16(limit) for limit in self._millimetre_limits)
+        else:
+            # numpy compares float32 with a Python float in float32 (NEP 50): so does this.
+            low, high = np.float32(self.range_min), np.float32(self.range_max)
+        seen = np.empty(self.grid.count, dtype=np.bool_)
+        self._kernel.seen_slots(
+            depth, coverage.rows, coverage.columns, low, high, coverage.owner, coverage.starts,
+            coverage.ends, seen,
+        )  # fmt: skip
+        return seen
+
     def _valid_centres(self, depth: npt.NDArray[Any]) -> Mask:
         """Whether each tile's centre pixel holds a depth inside the range limits."""
         coverage = self.coverage
@@ -530,9 +547,10 @@ class ObstacleProjector:
         """Compile (or load from numba's cache) the kernels now, not on the first frame."""
         if self._kernel is None:
             return
-        pixels = self.camera.width * self.camera.height
-        self.nearest_squared(np.zeros(pixels, dtype=np.uint16))
-        self.nearest_squared(np.full(pixels, np.nan, dtype=np.float32))
+        shape = (self.camera.height, self.camera.width)
+        for blank in (np.zeros(shape, dtype=np.uint16), np.full(shape, np.nan, dtype=np.float32)):
+            self.nearest_squared(blank.ravel())
+            self._seen(blank)
 
     def nearest_squared(
         self,
@@ -599,9 +617,10 @@ class ObstacleProjector:
         self.camera.check_depth(depth)
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
-        flat = np.ascontiguousarray(depth).ravel()
+        depth = np.ascontiguousarray(depth)
+        flat = depth.ravel()
         best = self.nearest_squared(flat, motion=motion)
-        seen = self.coverage.seen(self._valid_centres(depth))
+        seen = self._seen(depth)
         if not motion.is_identity:
             seen = _turn_slots(seen, motion.angle, self.grid)
         empty = np.where(seen, np.float32(np.inf), np.float32(np.nan))
@@ -619,16 +638,18 @@ class ObstacleProjector:
 
 
 def _row_order(lo: F64, hi: F64) -> npt.NDArray[np.int64]:
-    """Image rows by the mean near end of their pixels' slab intervals, nearest first.
+    """Image rows by the mean far end of their pixels' slab intervals, nearest first.
 
     The kernel visits rows in this order: near points fill each slot's k nearest early,
     so fewer of the farther points that follow are inserted (the result is the same in
-    any order). Rows that cannot see the slab go last.
+    any order). The far end is where a ray looking down leaves the slab into the floor,
+    where its points cluster (the floor's noise, what stands on it); rows that cannot see
+    the slab go last.
     """
     with np.errstate(invalid='ignore'):
         sees = lo <= hi
     seen = sees.sum(axis=1)
-    total = np.where(sees, lo, 0.0).sum(axis=1)
+    total = np.where(sees, hi, 0.0).sum(axis=1)
     typical = np.divide(total, seen, out=np.full(total.shape, np.inf), where=seen > 0)
     order: npt.NDArray[np.int64] = np.argsort(typical, kind='stable')
     return order

@@ -182,7 +182,49 @@ def _merge(into: Any, other: Any) -> None:
             into[s, j] = value
 
 
+def _seen_slots(
+    depth: Any,
+    rows: Any,
+    columns: Any,
+    low: Any,
+    high: Any,
+    owner: Any,
+    starts: Any,
+    ends: Any,
+    seen: Any,
+) -> None:
+    """`ViewCoverage.seen` of the tiles whose centre pixel (rows x columns) is in [low, high].
+
+    `seen` gets the slots inside a run [start, end) of a tile with a valid centre.
+    """
+    count = seen.size
+    height, width = depth.shape
+    valid = np.zeros(rows.size * columns.size, np.bool_)
+    for r in range(rows.size):
+        row = rows[r]
+        if not 0 <= row < height:
+            continue
+        for c in range(columns.size):
+            column = columns[c]
+            if 0 <= column < width:
+                z = depth[row, column]
+                valid[r * columns.size + c] = (z >= low) & (z <= high)
+    marks = np.zeros(count + 1, np.int64)
+    for piece in range(min(owner.size, starts.size, ends.size)):
+        tile = owner[piece]
+        if 0 <= tile < valid.size and valid[tile]:
+            start, end = starts[piece], ends[piece]
+            if 0 <= start <= count and 0 <= end <= count:
+                marks[start] += 1
+                marks[end] -= 1
+    running = 0
+    for s in range(count):
+        running += marks[s]
+        seen[s] = running > 0
+
+
 _jit = numba.njit(cache=True, nogil=True)
+seen_slots = _jit(_seen_slots)
 pick = _jit(_pick)
 accumulate = _jit(_accumulate)
 reset = _jit(_reset)
