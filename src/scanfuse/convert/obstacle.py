@@ -615,6 +615,9 @@ class ObstacleProjector:
         `frame_id` and `stamp_ns` are left for the caller (the LiDAR's).
         """
         self.camera.check_depth(depth)
+        if not all(map(math.isfinite, (motion.cos, motion.sin, motion.tx, motion.ty))):
+            msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
+            raise InputError(msg)
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
         depth = np.ascontiguousarray(depth)

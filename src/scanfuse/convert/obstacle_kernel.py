@@ -223,7 +223,24 @@ def _seen_slots(
         seen[s] = running > 0
 
 
-_jit = numba.njit(cache=True, nogil=True)
+def _cached(parallel: bool = False) -> Any:
+    """numba.njit with its on-disk cache, so a node start loads machine code, not compiles it.
+
+    numba keeps the cache in __pycache__ beside this file, or under the user's cache
+    directory (~/.cache/numba, or $NUMBA_CACHE_DIR) when the installed package is
+    read-only. With neither writable it cannot cache at all: compile at start then.
+    """
+
+    def decorate(function: Any) -> Any:
+        try:
+            return numba.njit(cache=True, nogil=True, parallel=parallel)(function)
+        except RuntimeError:  # pragma: no cover - "no locator available": nowhere to write
+            return numba.njit(nogil=True, parallel=parallel)(function)
+
+    return decorate
+
+
+_jit = _cached()
 seen_slots = _jit(_seen_slots)
 pick = _jit(_pick)
 accumulate = _jit(_accumulate)
@@ -266,7 +283,7 @@ def nearest_squared(
     pick(nearest, spread, best)
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@_cached(parallel=True)
 def nearest_squared_parallel(
     depth: Any,
     lo: Any,
