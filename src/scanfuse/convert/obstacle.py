@@ -523,7 +523,8 @@ class ObstacleProjector:
         self.lookup = SlotLookup.for_grid(lidar_grid)
         shape = (camera.height, camera.width)
         order = _row_order(lo.reshape(shape), hi.reshape(shape))
-        self._parts = _interleave(order, self.threads)
+        self._rows = order
+        self._bands = _column_bands(camera.width, self.threads)
         self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
         self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
         self._warm_up()
@@ -604,15 +605,15 @@ class ObstacleProjector:
         tables = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
         if self.threads == 1:
             kernel.nearest_squared(
-                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._parts[0], self.camera.width,
+                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
                 *tables, lookup.after, self.cluster_spread, self._nearest, self._bound[0],
                 self._best,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
-                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._parts, self.camera.width,
-                *tables, lookup.after, self.cluster_spread, self._part_nearest, self._bound,
-                self._best,
+                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
+                self._bands, *tables, lookup.after, self.cluster_spread, self._part_nearest,
+                self._bound, self._best,
             )  # fmt: skip
             self._nearest[:] = self._part_nearest[0]
         return self._best
@@ -675,13 +676,11 @@ def _row_order(lo: F64, hi: F64) -> npt.NDArray[np.int64]:
     return order
 
 
-def _interleave(order: npt.NDArray[np.int64], parts: int) -> npt.NDArray[np.int64]:
-    """`order` dealt round-robin into `parts` rows (-1 padded): similar work for each."""
-    length = -(-order.size // parts)
-    padded = np.full(length * parts, -1, dtype=np.int64)
-    padded[: order.size] = order
-    dealt: npt.NDArray[np.int64] = np.ascontiguousarray(padded.reshape(length, parts).T)
-    return dealt
+def _column_bands(width: int, parts: int) -> npt.NDArray[np.int64]:
+    """[start, stop) of `parts` bands of image columns, as equal as can be (parts x 2)."""
+    edges = np.linspace(0, width, parts + 1).round().astype(np.int64)
+    bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:]], axis=1)
+    return bands
 
 
 def _motion32(motion: PlanarMotion) -> tuple[np.float32, np.float32, np.float32, np.float32]:

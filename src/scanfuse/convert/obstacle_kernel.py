@@ -18,8 +18,8 @@ What differs is only which points are looked at, and in which order:
 - Rows go in an order the projector chose (nearest typical range first), so the k nearest
   fill early with near points and the bounds tighten sooner. The k smallest of a set do
   not depend on the order in which it is visited, so neither does the output.
-- `nearest_squared_parallel` splits the rows into interleaved parts, one per thread, each
-  with its own k nearest, and merges them per slot (k smallest of the parts' k smallest).
+- `nearest_squared_parallel` splits the columns into bands, one per thread, each with its
+  own k nearest, and merges them per slot (k smallest of the parts' k smallest).
 
 Every index is checked against the arrays it reads, and a point whose coordinates are not
 finite (a translation beyond float32 range, NaN in the motion) is dropped before it could
@@ -71,6 +71,7 @@ def _accumulate(
     m_ty: np.float32,
     rows: Any,
     width: int,
+    columns: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -80,7 +81,8 @@ def _accumulate(
     nearest: Any,
     bound: Any,
 ) -> None:
-    """Insert the kept points of `rows` (image row indices, in this order) into `nearest`.
+    """Insert the kept points of `rows` (image row indices, in this order), columns
+    [columns[0], columns[1]) of each, into `nearest`.
 
     `nearest` (slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
     fewer; `bound` (one per pseudo-angle bin) an upper bound of the k-th of every slot the
@@ -93,12 +95,15 @@ def _accumulate(
     pseudo_of = np.empty(BLOCK, np.float64)
     bin_of = np.empty(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
+    column_start = max(columns[0], 0)
+    column_stop = min(columns[1], width)
     for row in rows:
-        row_start = row * width
-        if row < 0 or width <= 0 or row_start + width > size:
+        row_start = row * width + column_start
+        row_stop = row * width + column_stop
+        if row < 0 or row_start >= row_stop or row_stop > size:
             continue
-        for start in range(row_start, row_start + width, BLOCK):
-            stop = min(start + BLOCK, row_start + width)
+        for start in range(row_start, row_stop, BLOCK):
+            stop = min(start + BLOCK, row_stop)
             # Slices, so the loops below index from 0 and compile without wraparound checks.
             z_block = depth[start:stop]
             lo_block = lo[start:stop]
@@ -276,8 +281,9 @@ def nearest_squared(
 ) -> None:
     """One thread: fill `nearest` (slots x k) and `best` (the reported squared range)."""
     reset(nearest, bound, before, middle, after)
+    every = np.array([0, width])
     accumulate(
-        depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width,
+        depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
         scale, first, second, before, middle, after, nearest, bound,
     )  # fmt: skip
     pick(nearest, spread, best)
@@ -296,8 +302,9 @@ def nearest_squared_parallel(
     m_sin: np.float32,
     m_tx: np.float32,
     m_ty: np.float32,
-    parts: Any,
+    rows: Any,
     width: int,
+    parts: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -309,14 +316,17 @@ def nearest_squared_parallel(
     bound: Any,
     best: Any,
 ) -> None:
-    """`nearest_squared` with the rows of part p (row p of `parts`, -1 padded) on thread p.
+    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p.
 
-    `nearest` and `bound` have one leading entry per part; part 0 gets the merged result.
+    Columns, not rows: a column band sees its own range of directions, hence mostly its
+    own slots, so the parts do not each insert the same slots' points (as row bands
+    would: their k nearest fill separately). `nearest` and `bound` have one leading entry
+    per part; part 0 gets the merged result.
     """
     for p in numba.prange(parts.shape[0]):
         reset(nearest[p], bound[p], before, middle, after)
         accumulate(
-            depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, parts[p], width,
+            depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, parts[p],
             scale, first, second, before, middle, after, nearest[p], bound[p],
         )  # fmt: skip
     for p in range(1, parts.shape[0]):
