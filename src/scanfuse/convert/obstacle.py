@@ -397,6 +397,11 @@ class ViewCoverage:
     ends: npt.NDArray[np.int64]
     in_view: Mask
 
+    @staticmethod
+    def tile_for(shape: tuple[int, int], tile_pixels: int = 20_000) -> int:
+        """The tile side for an image of `shape`: about `tile_pixels` tiles."""
+        return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / tile_pixels)))
+
     @classmethod
     def build(
         cls,
@@ -404,12 +409,18 @@ class ViewCoverage:
         far: tuple[F64, F64],
         shape: tuple[int, int],
         grid: AngleGrid,
-        tile_pixels: int = 20_000,
     ) -> ViewCoverage:
-        tile = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / tile_pixels)))
+        """The coverage of the pixels' segments near -> far (flattened images of `shape`)."""
+        tile = cls.tile_for(shape)
         first, last = _pixel_arcs(near, far, grid)
         turn = TWO_PI / abs(grid.angle_increment)
-        tile_first, tile_last = _tile_arcs(first, last, shape, tile, turn)
+        return cls.from_tile_arcs(*_tile_arcs(first, last, shape, tile, turn), shape, grid, tile)
+
+    @classmethod
+    def from_tile_arcs(
+        cls, tile_first: F64, tile_last: F64, shape: tuple[int, int], grid: AngleGrid, tile: int
+    ) -> ViewCoverage:
+        """The coverage from each tile's arc (`_tile_arcs`, tiles row-major)."""
         owner, starts, ends = _arc_pieces(tile_first, tile_last, grid)
         centre_rows = np.minimum(np.arange(0, shape[0], tile) + tile // 2, shape[0] - 1)
         centre_columns = np.minimum(np.arange(0, shape[1], tile) + tile // 2, shape[1] - 1)
@@ -477,53 +488,77 @@ class ObstacleProjector:
         self.range_max = float(range_max)
         self._kernel = _KERNEL if use_kernel else None
 
-        x_n, y_n = (np.asarray(c, dtype=np.float64).ravel() for c in camera.normalized_coordinates)
+        shape = (camera.height, camera.width)
+        pixels = shape[0] * shape[1]
+        tile = ViewCoverage.tile_for(shape)
+        turn = TWO_PI / abs(lidar_grid.angle_increment)
+        x_table, y_table = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
         height_row = extrinsics.base_to_camera_optical.rotation_matrix[2]
         b_z = extrinsics.base_to_camera_optical.translation[2]
-        a_z = height_row[0] * x_n + height_row[1] * y_n + height_row[2]
         laser = extrinsics.laser_to_camera_optical
         rotation = laser.rotation_matrix
-        a_x = rotation[0, 0] * x_n + rotation[0, 1] * y_n + rotation[0, 2]
-        a_y = rotation[1, 0] * x_n + rotation[1, 1] * y_n + rotation[1, 2]
         b_x, b_y = laser.translation[0], laser.translation[1]
-
-        lo, hi = _depth_interval(
-            a_z,
-            b_z,
-            min_obstacle_height=min_obstacle_height,
-            max_obstacle_height=max_obstacle_height,
-            range_min=range_min,
-            range_max=range_max,
+        self._b = (np.float32(b_x), np.float32(b_y))
+        self._metres = tuple(np.empty(pixels, dtype=np.float32) for _ in range(4))
+        self._millimetres = (
+            np.empty(pixels, dtype=np.uint16),
+            np.empty(pixels, dtype=np.uint16),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
         )
-        with np.errstate(invalid='ignore'):
-            sees_slab = np.where(lo <= hi, 1.0, np.nan)
-        near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
-        far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
-        self.coverage = ViewCoverage.build(near, far, (camera.height, camera.width), lidar_grid)
+        typical = np.empty(shape[0])
+        tile_arcs: list[tuple[F64, F64]] = []
+        # Bands of whole tile rows, about 64k pixels each: every step below is per pixel
+        # (per tile for the arcs), so banding changes no value, but the temporaries stay in
+        # cache and are reused instead of faulting in fresh pages of a full-frame array each.
+        band = tile * max(1, -(-65_536 // (tile * shape[1])))
+        for top in range(0, shape[0], band):
+            rows = min(band, shape[0] - top)
+            part = slice(top * shape[1], (top + rows) * shape[1])
+            x_n = x_table[part].astype(np.float64)
+            y_n = y_table[part].astype(np.float64)
+            a_z = height_row[0] * x_n + height_row[1] * y_n + height_row[2]
+            a_x = rotation[0, 0] * x_n + rotation[0, 1] * y_n + rotation[0, 2]
+            a_y = rotation[1, 0] * x_n + rotation[1, 1] * y_n + rotation[1, 2]
+            lo, hi = _depth_interval(
+                a_z,
+                b_z,
+                min_obstacle_height=min_obstacle_height,
+                max_obstacle_height=max_obstacle_height,
+                range_min=range_min,
+                range_max=range_max,
+            )
+            with np.errstate(invalid='ignore'):
+                sees_slab = np.where(lo <= hi, 1.0, np.nan)
+            near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
+            far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
+            first, last = _pixel_arcs(near, far, lidar_grid)
+            tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
+            for table, values in zip(self._metres, (lo, hi, a_x, a_y), strict=True):
+                table[part] = values
+            lo_mm, hi_mm = _millimetre_interval(lo, hi)
+            self._millimetres[0][part] = lo_mm
+            self._millimetres[1][part] = hi_mm
+            self._millimetres[2][part] = a_x * MILLIMETRE
+            self._millimetres[3][part] = a_y * MILLIMETRE
+            typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
+        self.coverage = ViewCoverage.from_tile_arcs(
+            np.concatenate([arcs[0] for arcs in tile_arcs]),
+            np.concatenate([arcs[1] for arcs in tile_arcs]),
+            shape,
+            lidar_grid,
+            tile,
+        )
         self.in_view = self.coverage.in_view
 
-        self._b = (np.float32(b_x), np.float32(b_y))
-        self._metres = (
-            lo.astype(np.float32),
-            hi.astype(np.float32),
-            a_x.astype(np.float32),
-            a_y.astype(np.float32),
-        )
-        lo_mm, hi_mm = _millimetre_interval(lo, hi)
-        self._millimetres = (
-            lo_mm,
-            hi_mm,
-            (a_x * MILLIMETRE).astype(np.float32),
-            (a_y * MILLIMETRE).astype(np.float32),
-        )
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
         self._nearest = np.empty((lidar_grid.count, self.min_points), dtype=np.float32)
         limits_mm = _millimetre_interval(np.array([range_min]), np.array([range_max]))
         self._millimetre_limits = (int(limits_mm[0][0]), int(limits_mm[1][0]))
         self.lookup = SlotLookup.for_grid(lidar_grid)
-        shape = (camera.height, camera.width)
-        order = _row_order(lo.reshape(shape), hi.reshape(shape))
-        self._rows = order
+        # Rows by the mean far end of their pixels' slab intervals, nearest first: see
+        # `_row_typical`; rows that cannot see the slab go last.
+        self._rows = np.argsort(typical, kind='stable')
         self._bands = _column_bands(camera.width, self.threads)
         self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
         self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
@@ -658,22 +693,20 @@ class ObstacleProjector:
         )
 
 
-def _row_order(lo: F64, hi: F64) -> npt.NDArray[np.int64]:
-    """Image rows by the mean far end of their pixels' slab intervals, nearest first.
+def _row_typical(lo: F64, hi: F64) -> F64:
+    """Per image row the mean far end of its pixels' slab intervals (Inf: none sees it).
 
-    The kernel visits rows in this order: near points fill each slot's k nearest early,
+    The kernel visits rows nearest first: near points fill each slot's k nearest early,
     so fewer of the farther points that follow are inserted (the result is the same in
     any order). The far end is where a ray looking down leaves the slab into the floor,
-    where its points cluster (the floor's noise, what stands on it); rows that cannot see
-    the slab go last.
+    where its points cluster (the floor's noise, what stands on it).
     """
     with np.errstate(invalid='ignore'):
         sees = lo <= hi
     seen = sees.sum(axis=1)
     total = np.where(sees, hi, 0.0).sum(axis=1)
-    typical = np.divide(total, seen, out=np.full(total.shape, np.inf), where=seen > 0)
-    order: npt.NDArray[np.int64] = np.argsort(typical, kind='stable')
-    return order
+    typical: F64 = np.divide(total, seen, out=np.full(total.shape, np.inf), where=seen > 0)
+    return typical
 
 
 def _column_bands(width: int, parts: int) -> npt.NDArray[np.int64]:
