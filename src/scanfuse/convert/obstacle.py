@@ -559,7 +559,12 @@ class ObstacleProjector:
         # Rows by the mean far end of their pixels' slab intervals, nearest first: see
         # `_row_typical`; rows that cannot see the slab go last.
         self._rows = np.argsort(typical, kind='stable')
-        self._bands = _column_bands(camera.width, self.threads)
+        block = self._kernel.BLOCK if self._kernel is not None else camera.width
+        self._bands = _column_bands(camera.width, self.threads, block)
+        self._block_extremes = {
+            np.dtype(np.uint16): _block_extremes(*self._millimetres[:2], shape, self._bands, block),
+            np.dtype(np.float32): _block_extremes(*self._metres[:2], shape, self._bands, block),
+        }
         self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
         self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
         self._warm_up()
@@ -638,17 +643,18 @@ class ObstacleProjector:
             return self._best
         depth = np.ascontiguousarray(depth)
         tables = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
+        least, greatest = self._block_extremes[depth.dtype]
         if self.threads == 1:
             kernel.nearest_squared(
                 depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
-                *tables, lookup.after, self.cluster_spread, self._nearest, self._bound[0],
-                self._best,
+                least, greatest, *tables, lookup.after, self.cluster_spread, self._nearest,
+                self._bound[0], self._best,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
                 depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
-                self._bands, *tables, lookup.after, self.cluster_spread, self._part_nearest,
-                self._bound, self._best,
+                self._bands, least, greatest, *tables, lookup.after, self.cluster_spread,
+                self._part_nearest, self._bound, self._best,
             )  # fmt: skip
             self._nearest[:] = self._part_nearest[0]
         return self._best
@@ -709,11 +715,42 @@ def _row_typical(lo: F64, hi: F64) -> F64:
     return typical
 
 
-def _column_bands(width: int, parts: int) -> npt.NDArray[np.int64]:
-    """[start, stop) of `parts` bands of image columns, as equal as can be (parts x 2)."""
+def _column_bands(width: int, parts: int, block: int) -> npt.NDArray[np.int64]:
+    """`parts` bands of image columns, as equal as can be: rows [start, stop, first block].
+
+    The kernel cuts each band into blocks of `block` columns from its start; the first
+    block is the index of the band's first block among the row's blocks.
+    """
     edges = np.linspace(0, width, parts + 1).round().astype(np.int64)
-    bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:]], axis=1)
+    blocks = -(-(edges[1:] - edges[:-1]) // block)
+    first = np.concatenate([[0], np.cumsum(blocks)[:-1]])
+    bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:], first], axis=1)
     return bands
+
+
+def _block_extremes(
+    lo: npt.NDArray[Any],
+    hi: npt.NDArray[Any],
+    shape: tuple[int, int],
+    bands: npt.NDArray[np.int64],
+    block: int,
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    """Per row and block of each band (`_column_bands`) the least lo and greatest hi."""
+    info = np.iinfo(lo.dtype) if lo.dtype.kind == 'u' else np.finfo(lo.dtype)
+    empty_lo, empty_hi = (info.max, info.min) if lo.dtype.kind == 'u' else (np.inf, -np.inf)
+    least, greatest = [], []
+    for start, stop, _ in bands:
+        blocks = -(-(stop - start) // block)
+        for table, fill, reduce, out in (
+            (lo, empty_lo, np.min, least),
+            (hi, empty_hi, np.max, greatest),
+        ):
+            padded = np.full((shape[0], blocks * block), fill, dtype=table.dtype)
+            padded[:, : stop - start] = table.reshape(shape)[:, start:stop]
+            out.append(reduce(padded.reshape(shape[0], blocks, block), axis=2))
+    return np.ascontiguousarray(np.concatenate(least, axis=1)), np.ascontiguousarray(
+        np.concatenate(greatest, axis=1)
+    )
 
 
 def _motion32(motion: PlanarMotion) -> tuple[np.float32, np.float32, np.float32, np.float32]:

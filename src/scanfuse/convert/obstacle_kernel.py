@@ -6,11 +6,12 @@ reference without it. The arithmetic of every point is the reference's
 pseudo-angles against the same slot tables, so both give the same scan bit for bit.
 What differs is only which points are looked at, and in which order:
 
-- Each image row is cut into blocks. A vectorised pass over a block (no branches, so the
-  noisy speckle of floor pixels around the slab's bottom costs no mispredictions) tests
-  every pixel against its [lo, hi] depth interval and, for the kept ones, computes the
-  point, its squared range and its pseudo-angle bin. Blocks without a kept pixel (most of
-  the floor, what is above the slab) stop after the test.
+- Each image row is cut into blocks. Most blocks (the floor, what is above the slab) hold
+  no depth inside the block's widest interval [least lo, greatest hi], a test that reads
+  the image alone. In the others, a vectorised pass (no branches, so the noisy speckle of
+  floor pixels around the slab's bottom costs no mispredictions) tests every pixel
+  against its own [lo, hi] and, for the kept ones, computes the point, its squared range
+  and its pseudo-angle bin.
 - A point can only change a slot's k nearest when it is nearer than the slot's k-th.
   Every bin keeps an upper bound of the k-th of the slots it touches, so the exact slot
   lookup and the insertion only run for points nearer than their bin's bound: after the
@@ -72,6 +73,8 @@ def _accumulate(
     rows: Any,
     width: int,
     columns: Any,
+    block_lo: Any,
+    block_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -83,6 +86,11 @@ def _accumulate(
 ) -> None:
     """Insert the kept points of `rows` (image row indices, in this order), columns
     [columns[0], columns[1]) of each, into `nearest`.
+
+    The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
+    each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
+    their pixels, so a block whose depths are all outside is skipped reading the image
+    alone.
 
     `nearest` (slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
     fewer; `bound` (one per pseudo-angle bin) an upper bound of the k-th of every slot the
@@ -97,24 +105,30 @@ def _accumulate(
     squared = np.empty(BLOCK, np.float32)
     column_start = max(columns[0], 0)
     column_stop = min(columns[1], width)
+    block_rows, blocks = block_lo.shape
     for row in rows:
         row_start = row * width + column_start
         row_stop = row * width + column_stop
-        if row < 0 or row_start >= row_stop or row_stop > size:
+        if not (0 <= row < block_rows and row_start < row_stop <= size):
             continue
+        block = columns[2]
         for start in range(row_start, row_stop, BLOCK):
             stop = min(start + BLOCK, row_stop)
+            if not 0 <= block < blocks:
+                break
+            least, greatest = block_lo[row, block], block_hi[row, block]
+            block += 1
             # Slices, so the loops below index from 0 and compile without wraparound checks.
             z_block = depth[start:stop]
-            lo_block = lo[start:stop]
-            hi_block = hi[start:stop]
             n = z_block.size
-            kept = 0
+            near_slab = 0
             for i in range(n):
                 z = z_block[i]
-                kept += (z >= lo_block[i]) & (z <= hi_block[i])
-            if kept == 0:
+                near_slab += (z >= least) & (z <= greatest)
+            if near_slab == 0:
                 continue
+            lo_block = lo[start:stop]
+            hi_block = hi[start:stop]
             ax_block = a_x[start:stop]
             ay_block = a_y[start:stop]
             for i in range(n):
@@ -268,6 +282,8 @@ def nearest_squared(
     m_ty: np.float32,
     rows: Any,
     width: int,
+    block_lo: Any,
+    block_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -281,10 +297,10 @@ def nearest_squared(
 ) -> None:
     """One thread: fill `nearest` (slots x k) and `best` (the reported squared range)."""
     reset(nearest, bound, before, middle, after)
-    every = np.array([0, width])
+    every = np.array([0, width, 0])
     accumulate(
         depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
-        scale, first, second, before, middle, after, nearest, bound,
+        block_lo, block_hi, scale, first, second, before, middle, after, nearest, bound,
     )  # fmt: skip
     pick(nearest, spread, best)
 
@@ -305,6 +321,8 @@ def nearest_squared_parallel(
     rows: Any,
     width: int,
     parts: Any,
+    block_lo: Any,
+    block_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -316,7 +334,8 @@ def nearest_squared_parallel(
     bound: Any,
     best: Any,
 ) -> None:
-    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p.
+    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p
+    (their blocks from parts[p, 2] on).
 
     Columns, not rows: a column band sees its own range of directions, hence mostly its
     own slots, so the parts do not each insert the same slots' points (as row bands
@@ -327,7 +346,8 @@ def nearest_squared_parallel(
         reset(nearest[p], bound[p], before, middle, after)
         accumulate(
             depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, parts[p],
-            scale, first, second, before, middle, after, nearest[p], bound[p],
+            block_lo, block_hi, scale, first, second, before, middle, after, nearest[p],
+            bound[p],
         )  # fmt: skip
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
