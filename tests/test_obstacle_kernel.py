@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from scanfuse.config import FusionConfig
-from scanfuse.convert.obstacle import FINEST_INCREMENT, ObstacleProjector, SlotLookup
+from scanfuse.convert.obstacle import FINEST_INCREMENT, SlotLookup
 from scanfuse.errors import InputError
 from scanfuse.motion import PlanarMotion
 from scanfuse.pipeline import FusionPipeline

@@ -499,7 +499,12 @@ class ObstacleProjector:
         rotation = laser.rotation_matrix
         b_x, b_y = laser.translation[0], laser.translation[1]
         self._b = (np.float32(b_x), np.float32(b_y))
-        self._metres = tuple(np.empty(pixels, dtype=np.float32) for _ in range(4))
+        self._metres = (
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
+        )
         self._millimetres = (
             np.empty(pixels, dtype=np.uint16),
             np.empty(pixels, dtype=np.uint16),
@@ -735,10 +740,13 @@ def _block_extremes(
     bands: npt.NDArray[np.int64],
     block: int,
 ) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
-    """Per row and block of each band (`_column_bands`) the least lo and greatest hi."""
-    info = np.iinfo(lo.dtype) if lo.dtype.kind == 'u' else np.finfo(lo.dtype)
-    empty_lo, empty_hi = (info.max, info.min) if lo.dtype.kind == 'u' else (np.inf, -np.inf)
-    least, greatest = [], []
+    """Per row and block of each band (`_column_bands`) the least lo and greatest hi.
+
+    Columns past a band's end pad its last block with an empty interval (lo > hi).
+    """
+    empty_lo, empty_hi = (UINT16_MAX, 0) if lo.dtype == np.uint16 else (np.inf, -np.inf)
+    least: list[npt.NDArray[Any]] = []
+    greatest: list[npt.NDArray[Any]] = []
     for start, stop, _ in bands:
         blocks = -(-(stop - start) // block)
         for table, fill, reduce, out in (

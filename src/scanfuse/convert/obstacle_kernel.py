@@ -267,8 +267,7 @@ reset = _jit(_reset)
 merge = _jit(_merge)
 
 
-@_jit
-def nearest_squared(
+def _nearest_squared(
     depth: Any,
     lo: Any,
     hi: Any,
@@ -305,8 +304,7 @@ def nearest_squared(
     pick(nearest, spread, best)
 
 
-@_cached(parallel=True)
-def nearest_squared_parallel(
+def _nearest_squared_parallel(
     depth: Any,
     lo: Any,
     hi: Any,
@@ -352,3 +350,7 @@ def nearest_squared_parallel(
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
     pick(nearest[0], spread, best)
+
+
+nearest_squared = _jit(_nearest_squared)
+nearest_squared_parallel = _cached(parallel=True)(_nearest_squared_parallel)
