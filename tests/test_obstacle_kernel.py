@@ -21,7 +21,7 @@ from hypothesis.extra import numpy as hnp
 
 from scanfuse.config import FusionConfig
 from scanfuse.convert.obstacle import FINEST_INCREMENT, SlotLookup
-from scanfuse.errors import InputError
+from scanfuse.errors import ConfigError, InputError
 from scanfuse.motion import PlanarMotion
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.scan import AngleGrid
@@ -138,6 +138,12 @@ def test_two_threads_give_the_same_scan(mounting, motion, depth):
     np.testing.assert_array_equal(two.scan(depth, motion).ranges, one.scan(depth, motion).ranges)
     with_box = render(SMALL, mounting, [BOX_5CM])
     np.testing.assert_array_equal(two.scan(with_box).ranges, one.scan(with_box).ranges)
+
+
+@pytest.mark.parametrize('threads', [0, 65])
+def test_config_bounds_obstacle_threads(threads):
+    with pytest.raises(ConfigError, match='obstacle_threads'):
+        FusionConfig().with_changes(obstacle_threads=threads)
 
 
 def test_pipeline_passes_obstacle_threads():

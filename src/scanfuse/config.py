@@ -98,9 +98,10 @@ class FusionConfig(BaseModel):
         ge=1,
         le=64,
         description=(
-            'obstacle method: threads per depth frame (rows split between them, the scan is '
-            'the same); 1 runs on the calling thread, 2 suits a robot computer with a core to '
-            'spare (about 1.7-1.9x faster at 1280x720 and up on an idle machine)'
+            'obstacle method: threads per depth frame (image columns split between them, '
+            'the scan is the same); 1 runs on the calling thread; 2 only pays with a core to '
+            'spare (best frames 1.6-1.9x faster), on busy cores it is slower than 1 because '
+            "numba's OpenMP workers wait for a core"
         ),
     )
     camera_x: float = Field(0.0, description='camera position in the base frame, metres')
