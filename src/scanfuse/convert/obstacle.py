@@ -446,8 +446,9 @@ class ObstacleProjector:
     Build once (tables, field of view, compiled kernel), then call `scan` per frame: the
     constructor does all per-camera work (tens of milliseconds at 1280x720, the kernel
     loaded from numba's cache), so build it as soon as the CameraInfo is known.
-    `threads` > 1 splits each frame's rows over that many threads (numba's thread pool);
-    the scan is the same.
+    `threads` > 1 splits each frame's columns over that many threads (numba's thread
+    pool); the scan is the same. The compiled kernel is `obstacle_kernel`; this module's
+    numpy reduction (`reference=True`, or without numba) is its reference.
     """
 
     def __init__(
