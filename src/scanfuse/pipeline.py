@@ -240,6 +240,7 @@ class FusionPipeline:
                 range_max=self.config.range_max,
                 min_points=self.config.obstacle_min_points,
                 cluster_spread=self.config.obstacle_cluster_spread,
+                threads=self.config.obstacle_threads,
             )
             self._projectors.put((camera, extrinsics), (grid,), projector)
         return projector

@@ -45,7 +45,7 @@ from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.scan import TWO_PI, AngleGrid, Scan, to_rep117
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from types import ModuleType
 
     import numpy.typing as npt
 
@@ -61,6 +61,11 @@ _LEVEL_RAY = 1e-12
 # uint16 millimetre limits are rounded towards inclusion by this much.
 _MM_ROUNDING = 1e-6
 UINT16_MAX = 65535
+# The slot lookup has 16 / angle_increment bins of 28 bytes (7.3 MB at this limit): the
+# finest real 2D LiDARs read every 0.01-0.1 deg (36 000 - 3600 a turn), this allows 103 000.
+FINEST_INCREMENT = 16.0 / (1 << 18)
+# Most threads `ObstacleProjector` splits a frame over.
+MAX_THREADS = 64
 
 
 def _pseudo_angle(x: F64, y: F64) -> F64:
@@ -102,7 +107,17 @@ class SlotLookup:
 
     @classmethod
     def for_grid(cls, grid: AngleGrid) -> SlotLookup:
+        """The lookup of `grid`; InputError for an increment finer than `FINEST_INCREMENT`."""
         increment = abs(grid.angle_increment)
+        if not increment >= FINEST_INCREMENT:
+            msg = (
+                f'LiDAR angle_increment {grid.angle_increment!r} rad is finer than the finest '
+                f'supported {FINEST_INCREMENT:.3g} rad ({math.degrees(FINEST_INCREMENT):.2g} deg, '
+                f'{math.ceil(TWO_PI / FINEST_INCREMENT)} readings per turn): the slot tables '
+                'grow as 1 / angle_increment; check the LaserScan (a driver that reports the '
+                'increment in degrees, or 0, is misconfigured)'
+            )
+            raise InputError(msg)
         # Pseudo-angle grows at least half as fast as the angle: bins of a quarter of
         # a slot's pseudo-width hold at most one regular boundary.
         bins = math.ceil(16.0 / increment)
@@ -150,83 +165,13 @@ class SlotLookup:
         return slot
 
 
-def _nearest_squared_loop(
-    depth: Any,
-    lo: Any,
-    hi: Any,
-    a_x: Any,
-    a_y: Any,
-    b_x: np.float32,
-    b_y: np.float32,
-    m_cos: np.float32,
-    m_sin: np.float32,
-    m_tx: np.float32,
-    m_ty: np.float32,
-    scale: float,
-    first: Any,
-    second: Any,
-    before: Any,
-    middle: Any,
-    after: Any,
-    nearest: Any,
-) -> None:
-    """Per slot the k smallest squared horizontal ranges of the pixels inside their [lo, hi].
-
-    `nearest` (slots x k, C order) gets each slot's k smallest in ascending order, Inf
-    where fewer; a new value is inserted by shifting the larger ones up.
-    `_nearest_squared_numpy` one pixel at a time, for numba: the same arithmetic (float32
-    points, float64 pseudo-angles) in the same order, so both agree exactly.
-    """
-    last_bin = first.size - 1
-    k = nearest.shape[1]
-    flat = nearest.ravel()
-    flat[:] = np.inf
-    for i in range(depth.size):
-        z = depth[i]
-        if not lo[i] <= z <= hi[i]:  # also drops NaN (float) and 0 (uint16, lo >= 1)
-            continue
-        z32 = np.float32(z)
-        x_seen = a_x[i] * z32 + b_x
-        y_seen = a_y[i] * z32 + b_y
-        # Motion compensation (identity: exactly x_seen, y_seen): the point where it lies
-        # relative to the LiDAR at the scan's stamp.
-        x = m_cos * x_seen - m_sin * y_seen + m_tx
-        y = m_sin * x_seen + m_cos * y_seen + m_ty
-        x64 = np.float64(x)
-        y64 = np.float64(y)
-        norm = abs(x64) + abs(y64)
-        if norm == 0.0:
-            continue
-        ratio = x64 / norm
-        pseudo = 1.0 - ratio if y64 >= 0.0 else 3.0 + ratio
-        index = min(int(pseudo * scale), last_bin)
-        if pseudo >= second[index]:
-            slot = after[index]
-        elif pseudo >= first[index]:
-            slot = middle[index]
-        else:
-            slot = before[index]
-        if slot < 0:
-            continue
-        r2 = x * x + y * y
-        start = slot * k
-        j = start + k - 1
-        if not r2 < flat[j]:
-            continue
-        while j > start and flat[j - 1] > r2:
-            flat[j] = flat[j - 1]
-            j -= 1
-        flat[j] = r2
-
-
-def _load_kernel() -> Callable[..., None] | None:
-    """The numba-compiled loop, or None when numba is not installed (numpy is used then)."""
+def _load_kernel() -> ModuleType | None:
+    """The numba-compiled kernels, or None when numba is not installed (numpy is used then)."""
     try:
-        import numba  # noqa: PLC0415
+        from scanfuse.convert import obstacle_kernel  # noqa: PLC0415
     except ImportError:  # pragma: no cover - numba is a dependency; this is the fallback
         return None
-    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_nearest_squared_loop)
-    return kernel
+    return obstacle_kernel
 
 
 _KERNEL = _load_kernel()
@@ -332,13 +277,30 @@ def _millimetre_interval(lo: F64, hi: F64) -> tuple[npt.NDArray[np.uint16], npt.
     return lo_mm.astype(np.uint16), hi_mm.astype(np.uint16)
 
 
+def _mod_turn(values: F64) -> F64:
+    """`np.mod(values, TWO_PI)`, bit for bit, without its slow general loop.
+
+    Within [-TWO_PI, 2 TWO_PI) np.mod is fmod (exact) plus TWO_PI where that is negative
+    (one rounding): so is this (x - TWO_PI is exact there by Sterbenz's lemma, and + 0.0
+    makes -0.0 the +0.0 np.mod gives). Other values go through np.mod.
+    """
+    # (a select of three branches, np.where, is slower than np.mod on unordered data)
+    turns = (values < 0.0).astype(np.float64) - (values >= TWO_PI)
+    out: F64 = values + TWO_PI * turns
+    far = (values < -TWO_PI) | (values >= 2.0 * TWO_PI)  # NaN: neither, and stays NaN
+    if far.any():
+        with np.errstate(invalid='ignore'):
+            out[far] = np.mod(values[far], TWO_PI)
+    return out
+
+
 def _slot_coordinate(angle: F64, grid: AngleGrid) -> F64:
     """Angle as a continuous slot position in [0, turn): slot k covers [k, k + 1)."""
     increment = grid.angle_increment
     if increment > 0.0:
-        offset = np.mod(angle - grid.angle_min + 0.5 * increment, TWO_PI)
+        offset = _mod_turn(angle - grid.angle_min + 0.5 * increment)
     else:
-        offset = np.mod(-(angle - grid.angle_min) - 0.5 * increment, TWO_PI)
+        offset = _mod_turn(-(angle - grid.angle_min) - 0.5 * increment)
     coordinate: F64 = offset / abs(increment)
     return coordinate
 
@@ -355,7 +317,7 @@ def _pixel_arcs(near: tuple[F64, F64], far: tuple[F64, F64], grid: AngleGrid) ->
     """
     near_angle = np.arctan2(near[1], near[0])
     far_angle = np.arctan2(far[1], far[0])
-    sweep = np.mod(far_angle - near_angle + math.pi, TWO_PI) - math.pi
+    sweep = _mod_turn(far_angle - near_angle + math.pi) - math.pi
     sign = 1.0 if grid.angle_increment > 0.0 else -1.0
     start = _slot_coordinate(near_angle, grid)
     end = start + sign * sweep / abs(grid.angle_increment)
@@ -435,6 +397,11 @@ class ViewCoverage:
     ends: npt.NDArray[np.int64]
     in_view: Mask
 
+    @staticmethod
+    def tile_for(shape: tuple[int, int], tile_pixels: int = 20_000) -> int:
+        """The tile side for an image of `shape`: about `tile_pixels` tiles."""
+        return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / tile_pixels)))
+
     @classmethod
     def build(
         cls,
@@ -442,12 +409,18 @@ class ViewCoverage:
         far: tuple[F64, F64],
         shape: tuple[int, int],
         grid: AngleGrid,
-        tile_pixels: int = 20_000,
     ) -> ViewCoverage:
-        tile = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / tile_pixels)))
+        """The coverage of the pixels' segments near -> far (flattened images of `shape`)."""
+        tile = cls.tile_for(shape)
         first, last = _pixel_arcs(near, far, grid)
         turn = TWO_PI / abs(grid.angle_increment)
-        tile_first, tile_last = _tile_arcs(first, last, shape, tile, turn)
+        return cls.from_tile_arcs(*_tile_arcs(first, last, shape, tile, turn), shape, grid, tile)
+
+    @classmethod
+    def from_tile_arcs(
+        cls, tile_first: F64, tile_last: F64, shape: tuple[int, int], grid: AngleGrid, tile: int
+    ) -> ViewCoverage:
+        """The coverage from each tile's arc (`_tile_arcs`, tiles row-major)."""
         owner, starts, ends = _arc_pieces(tile_first, tile_last, grid)
         centre_rows = np.minimum(np.arange(0, shape[0], tile) + tile // 2, shape[0] - 1)
         centre_columns = np.minimum(np.arange(0, shape[1], tile) + tile // 2, shape[1] - 1)
@@ -470,7 +443,12 @@ class ViewCoverage:
 class ObstacleProjector:
     """Depth images of one camera, mounted one way, to scans on one LiDAR grid.
 
-    Build once (tables, field of view, compiled kernel), then call `scan` per frame.
+    Build once (tables, field of view, compiled kernel), then call `scan` per frame: the
+    constructor does all per-camera work (tens of milliseconds at 1280x720, the kernel
+    loaded from numba's cache), so build it as soon as the CameraInfo is known.
+    `threads` > 1 splits each frame's columns over that many threads (numba's thread
+    pool); the scan is the same. The compiled kernel is `obstacle_kernel`; this module's
+    numpy reduction (`reference=True`, or without numba) is its reference.
     """
 
     def __init__(
@@ -486,8 +464,13 @@ class ObstacleProjector:
         min_points: int = 1,
         cluster_spread: float = math.inf,
         use_kernel: bool = True,
+        threads: int = 1,
     ) -> None:
         _check_limits(min_obstacle_height, max_obstacle_height, range_min, range_max)
+        if not 1 <= threads <= MAX_THREADS:
+            msg = f'threads must be 1 to {MAX_THREADS} (1: no thread pool), got {threads}'
+            raise InputError(msg)
+        self.threads = int(threads)
         if min_points < 1:
             msg = f'min_points must be at least 1 (1 reports the nearest point), got {min_points}'
             raise InputError(msg)
@@ -506,51 +489,108 @@ class ObstacleProjector:
         self.range_max = float(range_max)
         self._kernel = _KERNEL if use_kernel else None
 
-        x_n, y_n = (np.asarray(c, dtype=np.float64).ravel() for c in camera.normalized_coordinates)
+        shape = (camera.height, camera.width)
+        pixels = shape[0] * shape[1]
+        tile = ViewCoverage.tile_for(shape)
+        turn = TWO_PI / abs(lidar_grid.angle_increment)
+        x_table, y_table = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
         height_row = extrinsics.base_to_camera_optical.rotation_matrix[2]
         b_z = extrinsics.base_to_camera_optical.translation[2]
-        a_z = height_row[0] * x_n + height_row[1] * y_n + height_row[2]
         laser = extrinsics.laser_to_camera_optical
         rotation = laser.rotation_matrix
-        a_x = rotation[0, 0] * x_n + rotation[0, 1] * y_n + rotation[0, 2]
-        a_y = rotation[1, 0] * x_n + rotation[1, 1] * y_n + rotation[1, 2]
         b_x, b_y = laser.translation[0], laser.translation[1]
-
-        lo, hi = _depth_interval(
-            a_z,
-            b_z,
-            min_obstacle_height=min_obstacle_height,
-            max_obstacle_height=max_obstacle_height,
-            range_min=range_min,
-            range_max=range_max,
-        )
-        with np.errstate(invalid='ignore'):
-            sees_slab = np.where(lo <= hi, 1.0, np.nan)
-        near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
-        far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
-        self.coverage = ViewCoverage.build(near, far, (camera.height, camera.width), lidar_grid)
-        self.in_view = self.coverage.in_view
-
         self._b = (np.float32(b_x), np.float32(b_y))
         self._metres = (
-            lo.astype(np.float32),
-            hi.astype(np.float32),
-            a_x.astype(np.float32),
-            a_y.astype(np.float32),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
         )
-        lo_mm, hi_mm = _millimetre_interval(lo, hi)
         self._millimetres = (
-            lo_mm,
-            hi_mm,
-            (a_x * MILLIMETRE).astype(np.float32),
-            (a_y * MILLIMETRE).astype(np.float32),
+            np.empty(pixels, dtype=np.uint16),
+            np.empty(pixels, dtype=np.uint16),
+            np.empty(pixels, dtype=np.float32),
+            np.empty(pixels, dtype=np.float32),
         )
+        typical = np.empty(shape[0])
+        tile_arcs: list[tuple[F64, F64]] = []
+        # Bands of whole tile rows, about 64k pixels each: every step below is per pixel
+        # (per tile for the arcs), so banding changes no value, but the temporaries stay in
+        # cache and are reused instead of faulting in fresh pages of a full-frame array each.
+        band = tile * max(1, -(-65_536 // (tile * shape[1])))
+        for top in range(0, shape[0], band):
+            rows = min(band, shape[0] - top)
+            part = slice(top * shape[1], (top + rows) * shape[1])
+            x_n = x_table[part].astype(np.float64)
+            y_n = y_table[part].astype(np.float64)
+            a_z = height_row[0] * x_n + height_row[1] * y_n + height_row[2]
+            a_x = rotation[0, 0] * x_n + rotation[0, 1] * y_n + rotation[0, 2]
+            a_y = rotation[1, 0] * x_n + rotation[1, 1] * y_n + rotation[1, 2]
+            lo, hi = _depth_interval(
+                a_z,
+                b_z,
+                min_obstacle_height=min_obstacle_height,
+                max_obstacle_height=max_obstacle_height,
+                range_min=range_min,
+                range_max=range_max,
+            )
+            with np.errstate(invalid='ignore'):
+                sees_slab = np.where(lo <= hi, 1.0, np.nan)
+            near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
+            far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
+            first, last = _pixel_arcs(near, far, lidar_grid)
+            tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
+            for table, values in zip(self._metres, (lo, hi, a_x, a_y), strict=True):
+                table[part] = values
+            lo_mm, hi_mm = _millimetre_interval(lo, hi)
+            self._millimetres[0][part] = lo_mm
+            self._millimetres[1][part] = hi_mm
+            self._millimetres[2][part] = a_x * MILLIMETRE
+            self._millimetres[3][part] = a_y * MILLIMETRE
+            typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
+        self.coverage = ViewCoverage.from_tile_arcs(
+            np.concatenate([arcs[0] for arcs in tile_arcs]),
+            np.concatenate([arcs[1] for arcs in tile_arcs]),
+            shape,
+            lidar_grid,
+            tile,
+        )
+        self.in_view = self.coverage.in_view
+
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
         self._nearest = np.empty((lidar_grid.count, self.min_points), dtype=np.float32)
         limits_mm = _millimetre_interval(np.array([range_min]), np.array([range_max]))
         self._millimetre_limits = (int(limits_mm[0][0]), int(limits_mm[1][0]))
         self.lookup = SlotLookup.for_grid(lidar_grid)
+        # Rows by the mean far end of their pixels' slab intervals, nearest first: see
+        # `_row_typical`; rows that cannot see the slab go last.
+        self._rows = np.argsort(typical, kind='stable')
+        block = self._kernel.BLOCK if self._kernel is not None else camera.width
+        self._bands = _column_bands(camera.width, self.threads, block)
+        self._block_extremes = {
+            np.dtype(np.uint16): _block_extremes(*self._millimetres[:2], shape, self._bands, block),
+            np.dtype(np.float32): _block_extremes(*self._metres[:2], shape, self._bands, block),
+        }
+        self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
+        self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
         self._warm_up()
+
+    def _seen(self, depth: npt.NDArray[Any]) -> Mask:
+        """`ViewCoverage.seen` of this frame's valid tile centres, compiled when it can be."""
+        coverage = self.coverage
+        if self._kernel is None or depth.dtype not in (np.uint16, np.float32):
+            return coverage.seen(self._valid_centres(depth))
+        if depth.dtype == np.uint16:
+            low, high = (np.uint16(limit) for limit in self._millimetre_limits)
+        else:
+            # numpy compares float32 with a Python float in float32 (NEP 50): so does this.
+            low, high = np.float32(self.range_min), np.float32(self.range_max)
+        seen = np.empty(self.grid.count, dtype=np.bool_)
+        self._kernel.seen_slots(
+            depth, coverage.rows, coverage.columns, low, high, coverage.owner, coverage.starts,
+            coverage.ends, seen,
+        )  # fmt: skip
+        return seen
 
     def _valid_centres(self, depth: npt.NDArray[Any]) -> Mask:
         """Whether each tile's centre pixel holds a depth inside the range limits."""
@@ -568,12 +608,13 @@ class ObstacleProjector:
         return self._kernel is not None
 
     def _warm_up(self) -> None:
-        """Compile (or load from numba's cache) the kernel now, not on the first frame."""
+        """Compile (or load from numba's cache) the kernels now, not on the first frame."""
         if self._kernel is None:
             return
-        pixels = self.camera.width * self.camera.height
-        self.nearest_squared(np.zeros(pixels, dtype=np.uint16))
-        self.nearest_squared(np.full(pixels, np.nan, dtype=np.float32))
+        shape = (self.camera.height, self.camera.width)
+        for blank in (np.zeros(shape, dtype=np.uint16), np.full(shape, np.nan, dtype=np.float32)):
+            self.nearest_squared(blank.ravel())
+            self._seen(blank)
 
     def nearest_squared(
         self,
@@ -590,31 +631,38 @@ class ObstacleProjector:
         `reference=True` runs the numpy version whatever the kernel.
         `motion` moves every point before it is binned (motion compensation).
         """
+        pixels = self.camera.width * self.camera.height
+        if depth.ndim != 1 or depth.size != pixels or depth.dtype not in (np.uint16, np.float32):
+            msg = (
+                f'nearest_squared takes the flattened image: {pixels} uint16 or float32 '
+                f'values, got shape {depth.shape} of {depth.dtype}; scan() takes the image'
+            )
+            raise InputError(msg)
         lo, hi, a_x, a_y = self._millimetres if depth.dtype == np.uint16 else self._metres
         b_x, b_y = self._b
         moved = _motion32(motion)
         lookup = self.lookup
-        if self._kernel is not None and not reference:
-            self._kernel(
-                depth,
-                lo,
-                hi,
-                a_x,
-                a_y,
-                b_x,
-                b_y,
-                *moved,
-                lookup.scale,
-                lookup.first,
-                lookup.second,
-                lookup.before,
-                lookup.middle,
-                lookup.after,
-                self._nearest,
-            )
-        else:
+        kernel = self._kernel
+        if kernel is None or reference:
             _nearest_squared_numpy(depth, lo, hi, a_x, a_y, b_x, b_y, moved, lookup, self._nearest)
-        self._best[:] = _cluster_range_squared(self._nearest, self.cluster_spread)
+            self._best[:] = _cluster_range_squared(self._nearest, self.cluster_spread)
+            return self._best
+        depth = np.ascontiguousarray(depth)
+        tables = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
+        least, greatest = self._block_extremes[depth.dtype]
+        if self.threads == 1:
+            kernel.nearest_squared(
+                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
+                least, greatest, *tables, lookup.after, self.cluster_spread, self._nearest,
+                self._bound[0], self._best,
+            )  # fmt: skip
+        else:
+            kernel.nearest_squared_parallel(
+                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
+                self._bands, least, greatest, *tables, lookup.after, self.cluster_spread,
+                self._part_nearest, self._bound, self._best,
+            )  # fmt: skip
+            self._nearest[:] = self._part_nearest[0]
         return self._best
 
     def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
@@ -632,11 +680,15 @@ class ObstacleProjector:
         `frame_id` and `stamp_ns` are left for the caller (the LiDAR's).
         """
         self.camera.check_depth(depth)
+        if not all(map(math.isfinite, (motion.cos, motion.sin, motion.tx, motion.ty))):
+            msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
+            raise InputError(msg)
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
-        flat = np.ascontiguousarray(depth).ravel()
+        depth = np.ascontiguousarray(depth)
+        flat = depth.ravel()
         best = self.nearest_squared(flat, motion=motion)
-        seen = self.coverage.seen(self._valid_centres(depth))
+        seen = self._seen(depth)
         if not motion.is_identity:
             seen = _turn_slots(seen, motion.angle, self.grid)
         empty = np.where(seen, np.float32(np.inf), np.float32(np.nan))
@@ -651,6 +703,63 @@ class ObstacleProjector:
             range_max=self.range_max,
             ranges=ranges,
         )
+
+
+def _row_typical(lo: F64, hi: F64) -> F64:
+    """Per image row the mean far end of its pixels' slab intervals (Inf: none sees it).
+
+    The kernel visits rows nearest first: near points fill each slot's k nearest early,
+    so fewer of the farther points that follow are inserted (the result is the same in
+    any order). The far end is where a ray looking down leaves the slab into the floor,
+    where its points cluster (the floor's noise, what stands on it).
+    """
+    with np.errstate(invalid='ignore'):
+        sees = lo <= hi
+    seen = sees.sum(axis=1)
+    total = np.where(sees, hi, 0.0).sum(axis=1)
+    typical: F64 = np.divide(total, seen, out=np.full(total.shape, np.inf), where=seen > 0)
+    return typical
+
+
+def _column_bands(width: int, parts: int, block: int) -> npt.NDArray[np.int64]:
+    """`parts` bands of image columns, as equal as can be: rows [start, stop, first block].
+
+    The kernel cuts each band into blocks of `block` columns from its start; the first
+    block is the index of the band's first block among the row's blocks.
+    """
+    edges = np.linspace(0, width, parts + 1).round().astype(np.int64)
+    blocks = -(-(edges[1:] - edges[:-1]) // block)
+    first = np.concatenate([[0], np.cumsum(blocks)[:-1]])
+    bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:], first], axis=1)
+    return bands
+
+
+def _block_extremes(
+    lo: npt.NDArray[Any],
+    hi: npt.NDArray[Any],
+    shape: tuple[int, int],
+    bands: npt.NDArray[np.int64],
+    block: int,
+) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+    """Per row and block of each band (`_column_bands`) the least lo and greatest hi.
+
+    Columns past a band's end pad its last block with an empty interval (lo > hi).
+    """
+    empty_lo, empty_hi = (UINT16_MAX, 0) if lo.dtype == np.uint16 else (np.inf, -np.inf)
+    least: list[npt.NDArray[Any]] = []
+    greatest: list[npt.NDArray[Any]] = []
+    for start, stop, _ in bands:
+        blocks = -(-(stop - start) // block)
+        for table, fill, reduce, out in (
+            (lo, empty_lo, np.min, least),
+            (hi, empty_hi, np.max, greatest),
+        ):
+            padded = np.full((shape[0], blocks * block), fill, dtype=table.dtype)
+            padded[:, : stop - start] = table.reshape(shape)[:, start:stop]
+            out.append(reduce(padded.reshape(shape[0], blocks, block), axis=2))
+    return np.ascontiguousarray(np.concatenate(least, axis=1)), np.ascontiguousarray(
+        np.concatenate(greatest, axis=1)
+    )
 
 
 def _motion32(motion: PlanarMotion) -> tuple[np.float32, np.float32, np.float32, np.float32]:

@@ -1,0 +1,363 @@
+"""The compiled (numba) obstacle kernel: per LiDAR slot the k nearest points in the slab.
+
+Importing this module needs numba; `scanfuse.convert.obstacle` falls back to its numpy
+reference without it. The arithmetic of every point is the reference's
+(`obstacle._nearest_squared_numpy`): float32 points, moved by the motion, float64
+pseudo-angles against the same slot tables, so both give the same scan bit for bit.
+What differs is only which points are looked at, and in which order:
+
+- Each image row is cut into blocks. Most blocks (the floor, what is above the slab) hold
+  no depth inside the block's widest interval [least lo, greatest hi], a test that reads
+  the image alone. In the others, a vectorised pass (no branches, so the noisy speckle of
+  floor pixels around the slab's bottom costs no mispredictions) tests every pixel
+  against its own [lo, hi] and, for the kept ones, computes the point, its squared range
+  and its pseudo-angle bin.
+- A point can only change a slot's k nearest when it is nearer than the slot's k-th.
+  Every bin keeps an upper bound of the k-th of the slots it touches, so the exact slot
+  lookup and the insertion only run for points nearer than their bin's bound (gathered
+  first, without branches): after the first rows of a wall, a few per cent of its points.
+- Rows go in an order the projector chose (nearest typical range first), so the k nearest
+  fill early with near points and the bounds tighten sooner. The k smallest of a set do
+  not depend on the order in which it is visited, so neither does the output.
+- `nearest_squared_parallel` splits the columns into bands, one per thread, each with its
+  own k nearest, and merges them per slot (k smallest of the parts' k smallest).
+
+Every index is checked against the arrays it reads, and a point whose coordinates are not
+finite (a translation beyond float32 range, NaN in the motion) is dropped before it could
+reach an index: the kernel reads only inside its arrays whatever it is given.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+
+# Pixels per block of the vectorised pass: long enough for the vector loop to pay,
+# short enough that its scratch stays in L1 and floor blocks are skipped.
+BLOCK = 256
+_F32_BELOW_MAX = 3.0e38
+
+
+def _pick(nearest: Any, spread: float, best: Any) -> None:
+    """Per slot the farthest of its k nearest within spread r^2 of the nearest (r its range).
+
+    `obstacle._cluster_range_squared`, the same float64 arithmetic, slot by slot.
+    """
+    count, k = nearest.shape
+    for s in range(count):
+        first = np.float64(nearest[s, 0])
+        root = math.sqrt(first) + spread * first
+        limit = root * root
+        last = 0
+        for j in range(1, k):
+            if nearest[s, j] <= limit:
+                last = j
+        best[s] = nearest[s, last]
+
+
+def _accumulate(
+    depth: Any,
+    lo: Any,
+    hi: Any,
+    a_x: Any,
+    a_y: Any,
+    b_x: np.float32,
+    b_y: np.float32,
+    m_cos: np.float32,
+    m_sin: np.float32,
+    m_tx: np.float32,
+    m_ty: np.float32,
+    rows: Any,
+    width: int,
+    columns: Any,
+    block_lo: Any,
+    block_hi: Any,
+    scale: float,
+    first: Any,
+    second: Any,
+    before: Any,
+    middle: Any,
+    after: Any,
+    nearest: Any,
+    bound: Any,
+) -> None:
+    """Insert the kept points of `rows` (image row indices, in this order), columns
+    [columns[0], columns[1]) of each, into `nearest`.
+
+    The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
+    each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
+    their pixels, so a block whose depths are all outside is skipped reading the image
+    alone.
+
+    `nearest` (slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
+    fewer; `bound` (one per pseudo-angle bin) an upper bound of the k-th of every slot the
+    bin touches (-Inf for a bin without a slot). Both are updated in place.
+    """
+    count, k = nearest.shape
+    bins = first.size
+    last_bin = bins - 1
+    size = min(depth.size, lo.size, hi.size, a_x.size, a_y.size)
+    pseudo_of = np.empty(BLOCK, np.float64)
+    bin_of = np.empty(BLOCK, np.int64)
+    squared = np.empty(BLOCK, np.float32)
+    chosen = np.empty(BLOCK, np.int64)
+    column_start = max(columns[0], 0)
+    column_stop = min(columns[1], width)
+    block_rows, blocks = block_lo.shape
+    for row in rows:
+        row_start = row * width + column_start
+        row_stop = row * width + column_stop
+        if not (0 <= row < block_rows and row_start < row_stop <= size):
+            continue
+        block = columns[2]
+        for start in range(row_start, row_stop, BLOCK):
+            stop = min(start + BLOCK, row_stop)
+            if not 0 <= block < blocks:
+                break
+            least, greatest = block_lo[row, block], block_hi[row, block]
+            block += 1
+            # Slices, so the loops below index from 0 and compile without wraparound checks.
+            z_block = depth[start:stop]
+            n = z_block.size
+            near_slab = 0
+            for i in range(n):
+                z = z_block[i]
+                near_slab += (z >= least) & (z <= greatest)
+            if near_slab == 0:
+                continue
+            lo_block = lo[start:stop]
+            hi_block = hi[start:stop]
+            ax_block = a_x[start:stop]
+            ay_block = a_y[start:stop]
+            for i in range(n):
+                z = z_block[i]
+                keep = (z >= lo_block[i]) & (z <= hi_block[i])
+                z32 = np.float32(z)
+                x_seen = ax_block[i] * z32 + b_x
+                y_seen = ay_block[i] * z32 + b_y
+                # Motion compensation (identity: x_seen, y_seen up to the sign of zero).
+                x = m_cos * x_seen - m_sin * y_seen + m_tx
+                y = m_sin * x_seen + m_cos * y_seen + m_ty
+                x64 = np.float64(x)
+                y64 = np.float64(y)
+                norm = abs(x64) + abs(y64)
+                # Not finite (inf, NaN) or at the origin: no direction, never indexed.
+                good = keep & (norm > 0.0) & (norm < np.inf)
+                ratio = x64 / (norm if good else 1.0)
+                pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
+                pseudo_of[i] = pseudo
+                bin_of[i] = min(np.int64(pseudo * scale), last_bin)
+                squared[i] = x * x + y * y if good else np.float32(np.inf)
+            # The candidates, nearer than their bin's bound as the block starts (bounds only
+            # fall, so this keeps every point the exact test below would): compacted without
+            # a branch, as speckle makes them unpredictable.
+            found = 0
+            for i in range(n):
+                chosen[found] = i
+                found += squared[i] < bound[bin_of[i]]
+            for c in range(found):
+                i = chosen[c]
+                r2 = squared[i]
+                index = bin_of[i]
+                pseudo = pseudo_of[i]
+                if pseudo >= second[index]:
+                    slot = after[index]
+                elif pseudo >= first[index]:
+                    slot = middle[index]
+                else:
+                    slot = before[index]
+                if 0 <= slot < count and r2 < nearest[slot, k - 1]:
+                    j = k - 1
+                    while j > 0 and nearest[slot, j - 1] > r2:
+                        nearest[slot, j] = nearest[slot, j - 1]
+                        j -= 1
+                    nearest[slot, j] = r2
+                # The bin's bound is the largest k-th of its slots (-Inf for no slot).
+                tight = -np.inf
+                for candidate in (before[index], middle[index], after[index]):
+                    if 0 <= candidate < count:
+                        tight = max(tight, nearest[candidate, k - 1])
+                bound[index] = tight
+
+
+def _reset(nearest: Any, bound: Any, before: Any, middle: Any, after: Any) -> None:
+    """Every slot empty (Inf); a bin's bound Inf when it touches a slot, else -Inf."""
+    count = nearest.shape[0]
+    nearest[:] = np.inf
+    for index in range(bound.size):
+        touches = (
+            0 <= before[index] < count or 0 <= middle[index] < count or 0 <= after[index] < count
+        )
+        bound[index] = np.inf if touches else -np.inf
+
+
+def _merge(into: Any, other: Any) -> None:
+    """`into` (slots x k, ascending rows) becomes the k smallest of `into` and `other`."""
+    count, k = into.shape
+    for s in range(count):
+        for value in other[s]:
+            if not value < into[s, k - 1]:
+                break  # rows are ascending: the rest are not smaller either
+            j = k - 1
+            while j > 0 and into[s, j - 1] > value:
+                into[s, j] = into[s, j - 1]
+                j -= 1
+            into[s, j] = value
+
+
+def _seen_slots(
+    depth: Any,
+    rows: Any,
+    columns: Any,
+    low: Any,
+    high: Any,
+    owner: Any,
+    starts: Any,
+    ends: Any,
+    seen: Any,
+) -> None:
+    """`ViewCoverage.seen` of the tiles whose centre pixel (rows x columns) is in [low, high].
+
+    `seen` gets the slots inside a run [start, end) of a tile with a valid centre.
+    """
+    count = seen.size
+    height, width = depth.shape
+    valid = np.zeros(rows.size * columns.size, np.bool_)
+    for r in range(rows.size):
+        row = rows[r]
+        if not 0 <= row < height:
+            continue
+        for c in range(columns.size):
+            column = columns[c]
+            if 0 <= column < width:
+                z = depth[row, column]
+                valid[r * columns.size + c] = (z >= low) & (z <= high)
+    marks = np.zeros(count + 1, np.int64)
+    for piece in range(min(owner.size, starts.size, ends.size)):
+        tile = owner[piece]
+        if 0 <= tile < valid.size and valid[tile]:
+            start, end = starts[piece], ends[piece]
+            if 0 <= start <= count and 0 <= end <= count:
+                marks[start] += 1
+                marks[end] -= 1
+    running = 0
+    for s in range(count):
+        running += marks[s]
+        seen[s] = running > 0
+
+
+def _cached(parallel: bool = False) -> Any:
+    """numba.njit with its on-disk cache, so a node start loads machine code, not compiles it.
+
+    numba keeps the cache in __pycache__ beside this file, or under the user's cache
+    directory (~/.cache/numba, or $NUMBA_CACHE_DIR) when the installed package is
+    read-only. With neither writable it cannot cache at all: compile at start then.
+    """
+
+    def decorate(function: Any) -> Any:
+        try:
+            return numba.njit(cache=True, nogil=True, parallel=parallel)(function)
+        except RuntimeError:  # pragma: no cover - "no locator available": nowhere to write
+            return numba.njit(nogil=True, parallel=parallel)(function)
+
+    return decorate
+
+
+_jit = _cached()
+seen_slots = _jit(_seen_slots)
+pick = _jit(_pick)
+accumulate = _jit(_accumulate)
+reset = _jit(_reset)
+merge = _jit(_merge)
+
+
+def _nearest_squared(
+    depth: Any,
+    lo: Any,
+    hi: Any,
+    a_x: Any,
+    a_y: Any,
+    b_x: np.float32,
+    b_y: np.float32,
+    m_cos: np.float32,
+    m_sin: np.float32,
+    m_tx: np.float32,
+    m_ty: np.float32,
+    rows: Any,
+    width: int,
+    block_lo: Any,
+    block_hi: Any,
+    scale: float,
+    first: Any,
+    second: Any,
+    before: Any,
+    middle: Any,
+    after: Any,
+    spread: float,
+    nearest: Any,
+    bound: Any,
+    best: Any,
+) -> None:
+    """One thread: fill `nearest` (slots x k) and `best` (the reported squared range)."""
+    reset(nearest, bound, before, middle, after)
+    every = np.array([0, width, 0])
+    accumulate(
+        depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
+        block_lo, block_hi, scale, first, second, before, middle, after, nearest, bound,
+    )  # fmt: skip
+    pick(nearest, spread, best)
+
+
+def _nearest_squared_parallel(
+    depth: Any,
+    lo: Any,
+    hi: Any,
+    a_x: Any,
+    a_y: Any,
+    b_x: np.float32,
+    b_y: np.float32,
+    m_cos: np.float32,
+    m_sin: np.float32,
+    m_tx: np.float32,
+    m_ty: np.float32,
+    rows: Any,
+    width: int,
+    parts: Any,
+    block_lo: Any,
+    block_hi: Any,
+    scale: float,
+    first: Any,
+    second: Any,
+    before: Any,
+    middle: Any,
+    after: Any,
+    spread: float,
+    nearest: Any,
+    bound: Any,
+    best: Any,
+) -> None:
+    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p
+    (their blocks from parts[p, 2] on).
+
+    Columns, not rows: a column band sees its own range of directions, hence mostly its
+    own slots, so the parts do not each insert the same slots' points (as row bands
+    would: their k nearest fill separately). `nearest` and `bound` have one leading entry
+    per part; part 0 gets the merged result.
+    """
+    for p in numba.prange(parts.shape[0]):
+        reset(nearest[p], bound[p], before, middle, after)
+        accumulate(
+            depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, parts[p],
+            block_lo, block_hi, scale, first, second, before, middle, after, nearest[p],
+            bound[p],
+        )  # fmt: skip
+    for p in range(1, parts.shape[0]):
+        merge(nearest[0], nearest[p])
+    pick(nearest[0], spread, best)
+
+
+nearest_squared = _jit(_nearest_squared)
+nearest_squared_parallel = _cached(parallel=True)(_nearest_squared_parallel)
