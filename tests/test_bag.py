@@ -40,8 +40,10 @@ from scanfuse.ros.messages import (
     camera_to_cdr,
     odometry_to_cdr,
     scan_from_cdr,
+    scan_to_cdr,
     tf_message_to_cdr,
 )
+from scanfuse.scan import Scan
 from tests.support.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 GAP = (0.5, 0.9)
@@ -659,3 +661,74 @@ def test_with_odometry_the_bag_gets_the_memory_and_the_instantaneous_scan(tmp_pa
     assert np.nanmin(fused.ranges[index - 1 : index + 2]) == pytest.approx(
         np.nanmin(instant.ranges[index - 1 : index + 2]), abs=0.02
     )
+
+
+def _rear_scans(scene: Scene) -> list[tuple[str, str, int, bytes]]:
+    """A second LiDAR 0.5 m behind the base, facing back, seeing a wall 1.0 m behind it."""
+    count = 181
+    increment = math.pi / (count - 1)
+    angles = -math.pi / 2 + increment * np.arange(count)
+    ranges = (1.0 / np.cos(angles)).astype(np.float32)
+    ranges[np.abs(angles) > math.radians(60)] = np.inf
+    out = []
+    for stamp in scene.scan_stamps():
+        scan = Scan(
+            angle_min=-math.pi / 2,
+            angle_max=math.pi / 2,
+            angle_increment=increment,
+            range_min=0.05,
+            range_max=10.0,
+            ranges=ranges,
+            frame_id='rear_laser',
+            stamp_ns=stamp - 20_000_000,
+        )
+        out.append(('/rear/scan', LASER_SCAN, stamp - 15_000_000, scan_to_cdr(scan)))
+    return out
+
+
+def test_a_second_lidar_named_as_a_source_lands_in_the_fused_scan(tmp_path):
+    scene = Scene(duration=0.5, publish_tf=False)
+    messages = sorted([*scene_messages(scene), *_rear_scans(scene)], key=lambda m: m[2])
+    source = write_bag(tmp_path / 'in', messages)
+    config = FusionConfig.from_dict(
+        {
+            'use_tf': False,
+            'lidars': ['front', 'rear'],
+            'front': {'topic': '/scan', 'z': 0.3},
+            'rear': {'topic': '/rear/scan', 'x': -0.5, 'z': 0.3, 'yaw': math.pi},
+            'camera_x': 0.1,
+        }
+    )
+    report = fuse_bag(source, tmp_path / 'out', config=config)
+    assert report.topics.sources == (('/rear/scan', 'rear', LASER_SCAN),)
+    with AnyReader([tmp_path / 'out']) as reader:
+        fused = [scan_from_cdr(raw) for c, _, raw in reader.messages() if c.topic == '/scan_fused']
+    # The front LiDAR's grid (270 degrees) reaches behind to +-135 degrees; straight behind
+    # it, the rear wall is 1.5 m from the front LiDAR at the base origin (0.5 + 1.0).
+    last = fused[-1]
+    slot = int(last.grid.slot_of(np.array([math.radians(130.0)]))[0])
+    # Wall x = -1.5 in the base frame, seen from the origin at 130 degrees: 1.5 / cos(50 deg);
+    # the rear LiDAR sees that point 61 degrees off its axis, past its 60: nothing there.
+    assert not np.isfinite(last.ranges[slot])
+    slot = int(last.grid.slot_of(np.array([math.radians(-135.0)]))[0])
+    # At -135 degrees: the point (-1.5, -1.5) is 56 degrees off the rear LiDAR's axis.
+    assert last.ranges[slot] == pytest.approx(1.5 / math.cos(math.radians(45.0)), abs=0.02)
+
+
+def test_sensors_nobody_named_are_listed_in_the_report(tmp_path):
+    scene = Scene(duration=0.3)
+    messages = sorted([*scene_messages(scene), *_rear_scans(scene)], key=lambda m: m[2])
+    report = fuse_bag(write_bag(tmp_path / 'in', messages), tmp_path / 'out')
+    assert report.topics.scan == '/scan'
+    assert report.topics.unused == (('/rear/scan', LASER_SCAN),)
+    rows = {str(r) for r in report.table().columns[1]._cells}
+    assert any('/rear/scan (LaserScan): name it to fuse it' in row for row in rows)
+
+
+def test_a_named_source_missing_from_the_bag_is_an_error(tmp_path):
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    config = FusionConfig.from_dict(
+        {'lidars': ['front', 'rear'], 'front': {'topic': '/scan'}, 'rear': {'topic': '/rear/scan'}}
+    )
+    with pytest.raises(BagError, match=r'source rear: topic /rear/scan is not in the bag'):
+        fuse_bag(source, tmp_path / 'out', config=config)

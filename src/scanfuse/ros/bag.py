@@ -55,10 +55,12 @@ from scanfuse.ros.messages import (
     IMAGE,
     LASER_SCAN,
     ODOMETRY,
+    POINT_CLOUD,
     TF_MESSAGE,
     Distro,
     camera_from_msg,
     check_depth_matches_camera,
+    cloud_from_msg,
     depth_from_msg,
     deserialize,
     is_depth_encoding,
@@ -163,11 +165,18 @@ class RichProgress:
 
 @dataclass(frozen=True)
 class TopicChoice:
-    """The three input topics fused."""
+    """The input topics fused: the primary three, the other named sources, and what else the
+    bag holds that could have been a source."""
 
     scan: str
     depth: str
     camera_info: str
+    sources: tuple[tuple[str, str, str], ...] = ()  # (topic, source name, message type)
+    unused: tuple[tuple[str, str], ...] = ()  # (topic, type) of sensors nobody named
+
+    def source_of(self, topic: str) -> tuple[str, str] | None:
+        """(source name, type) of an extra source's topic."""
+        return next(((name, kind) for t, name, kind in self.sources if t == topic), None)
 
 
 @dataclass(frozen=True)
@@ -212,6 +221,14 @@ class BagReport:
         rows = [
             ('input', str(self.input)),
             ('topics', f'{self.topics.scan} + {self.topics.depth} ({self.topics.camera_info})'),
+            *(
+                (f'  source {name}', f'{topic} ({kind.rsplit("/", 1)[-1]})')
+                for topic, name, kind in self.topics.sources
+            ),
+            *(
+                ('  not fused', f'{topic} ({kind.rsplit("/", 1)[-1]}): name it to fuse it')
+                for topic, kind in self.topics.unused
+            ),
             ('extrinsics from', self.extrinsics_source),
             ('messages read', str(self.messages_read)),
             ('messages written', str(self.messages_written)),
@@ -716,8 +733,43 @@ class _BagJob:
         info_topic = self._choose(
             camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
         )
-        self.choice = TopicChoice(scan_topic, depth_topic, info_topic)
+        sources = self._named_sources()
+        used = {scan_topic, depth_topic, info_topic, *(t for t, _, _ in sources)}
+        sensor_types = {LASER_SCAN, POINT_CLOUD} | ({IMAGE} if depth_topics else set())
+        unused = tuple(
+            sorted(
+                (name, t)
+                for name, t in self.topics_types.items()
+                if t in sensor_types and name not in used and (t != IMAGE or name in depth_topics)
+            )
+        )
+        self.choice = TopicChoice(scan_topic, depth_topic, info_topic, sources, unused)
+        if unused:
+            logger.info(
+                'also in the bag, not fused: %s (name them in lidars / cameras / clouds)',
+                describe_topics(dict(unused)),
+            )
         return self.choice
+
+    def _named_sources(self) -> tuple[tuple[str, str, str], ...]:
+        """Topics of the named sources beyond the primary pair; each must be in the bag."""
+        sources = self.config.sources
+        wanted = [
+            *((s.topic, s.name, LASER_SCAN) for s in sources.lidars[1:]),
+            *((s.depth_topic, s.name, IMAGE) for s in sources.cameras[1:]),
+            *((s.camera_info_topic, s.name, CAMERA_INFO) for s in sources.cameras[1:]),
+            *((s.topic, s.name, POINT_CLOUD) for s in sources.clouds),
+        ]
+        for topic, name, kind in wanted:
+            found = self.topics_types.get(topic)
+            if found != kind:
+                what = f'is a {found}' if found else 'is not in the bag'
+                msg = (
+                    f'source {name}: topic {topic} {what}; {kind} topics: '
+                    f'{describe_topics(self._candidates(kind))}'
+                )
+                raise BagError(msg)
+        return tuple(wanted)
 
     def _output_topics(self) -> set[str]:
         config = self.config
@@ -961,6 +1013,9 @@ class _BagJob:
             if stream.camera is not None:
                 check_depth_matches_camera(image, stream.camera)
             return stream.add_depth(image.stamp_ns, image.depth, log_time, image.frame_id)
+        extra = self.choice.source_of(topic)
+        if extra is not None:
+            return self._feed_source(extra, cdr, log_time)
         if topic == self.choice.camera_info:
             stream.add_camera_info(camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store)))
         elif topic == TF_TOPIC and self.msgtype(connection) == TF_MESSAGE:
@@ -971,6 +1026,27 @@ class _BagJob:
             sample = odometry_from_msg(deserialize(cdr, ODOMETRY, self.store))
             stream.add_odometry(sample.stamp_ns, sample.pose)
         return stream.tick(log_time)
+
+    def _feed_source(
+        self, source: tuple[str, str], cdr: bytes, log_time: int
+    ) -> list[StreamOutput[_Lidar]]:
+        """A message of another named source into the stream."""
+        name, kind = source
+        stream = self.stream
+        if kind == LASER_SCAN:
+            scan = scan_from_msg(deserialize(cdr, LASER_SCAN, self.store))
+            return stream.add_scan(scan, _Lidar(cdr, log_time), log_time, source=name)
+        if kind == IMAGE:
+            image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
+            return stream.add_depth(
+                image.stamp_ns, image.depth, log_time, image.frame_id, source=name
+            )
+        if kind == CAMERA_INFO:
+            camera = camera_from_msg(deserialize(cdr, CAMERA_INFO, self.store))
+            stream.add_camera_info(camera, source=name)
+            return stream.tick(log_time)
+        cloud = cloud_from_msg(deserialize(cdr, POINT_CLOUD, self.store))
+        return stream.add_cloud(cloud.stamp_ns, cloud.points, log_time, cloud.frame_id, name)
 
     def _malformed(self, found: list[MalformedMessage], err: Exception, *, strict: bool) -> None:
         """Skip and list the message being handled (or, with `strict`, stop on it)."""
