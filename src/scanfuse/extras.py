@@ -182,8 +182,10 @@ class ExtraSources:
             if mount is None or motion is None:
                 return None
             scan = locator.deskewed(message.data)  # type: ignore[arg-type]
-            points = mount.apply(lidar_points(scan)) if len(scan) else np.empty((0, 3))
-            return self._points(points, base_to_output, output, motion, -np.inf, np.inf, 1, np.inf)
+            points = lidar_points(scan)
+            return self._points(
+                points, mount, base_to_output, output, motion, -np.inf, np.inf, 1, np.inf
+            )
         if name in self.cameras:
             camera_source = self.cameras[name]
             assert message.camera is not None
@@ -202,11 +204,12 @@ class ExtraSources:
         motion = locator.motion_to(message.stamp_ns, output.stamp_ns, base_to_output)
         if mount is None or motion is None:
             return None
-        points = mount.apply(np.asarray(message.data, dtype=np.float64).reshape(-1, 3))
+        points = np.asarray(message.data).reshape(-1, 3)
         low = config.min_obstacle_height if cloud.min_height is None else cloud.min_height
         high = config.max_obstacle_height if cloud.max_height is None else cloud.max_height
         return self._points(
             points,
+            mount,
             base_to_output,
             output,
             motion,
@@ -219,7 +222,8 @@ class ExtraSources:
 
     @staticmethod
     def _points(
-        points_base: npt.NDArray[np.float64],
+        points: npt.NDArray[np.floating],
+        base_to_sensor: Transform,
         base_to_output: Transform,
         output: Scan,
         motion: PlanarMotion,
@@ -231,7 +235,8 @@ class ExtraSources:
         range_max: float | None = None,
     ) -> Scan:
         scan = points_scan(
-            points_base,
+            points,
+            base_to_sensor,
             base_to_output,
             output.grid,
             motion=motion,

@@ -1,12 +1,12 @@
 """Point clouds (PointCloud2, or any 3D points) to a scan, as the obstacle method does pixels.
 
-Points are given in the base frame (z = 0 is the floor); those whose height is inside the
-collision slab are moved (motion compensation) into the output LiDAR's frame and binned by
-their bearing into its slots. Per slot the same noise-robust estimate as the obstacle
-method's is reported: of the k nearest points, the farthest within `cluster_spread` r^2 of
-the nearest (k = `min_points`; 1: the plain nearest). Points outside the range limits are
-left out, and slots without points are NaN: a cloud has no view model to say a slot is
-free, so it only ever adds obstacles.
+Points come in their sensor's frame with its mounting; those whose height above the floor
+(base z = 0) is inside the collision slab are moved (motion compensation) into the output
+LiDAR's frame and binned by their bearing into its slots, in one compiled pass. Per slot
+the obstacle method's noise-robust estimate is reported: of the k nearest points, the
+farthest within `cluster_spread` r^2 of the nearest (k = `min_points`; 1: the plain
+nearest). Points outside the range limits are left out, and slots without points are NaN:
+a cloud has no view model to say a slot is free, so it only ever adds obstacles.
 """
 
 from __future__ import annotations
@@ -31,8 +31,11 @@ if TYPE_CHECKING:
 
 
 def _nearest_loop(
-    x: Any,
-    y: Any,
+    points: Any,
+    height_row: Any,
+    plane: Any,
+    low: float,
+    high: float,
     angle_min: float,
     increment: float,
     count: int,
@@ -41,15 +44,28 @@ def _nearest_loop(
     range_max_squared: float,
     nearest: Any,
 ) -> None:
-    """Per slot the k smallest squared ranges of points (x, y) within the range limits,
-    ascending (Inf: fewer)."""
+    """Per slot the k smallest squared ranges of the points inside the slab and the range
+    limits, ascending (Inf: fewer).
+
+    `points` (N x 3) are in the sensor frame; `height_row` (4) gives their height above the
+    floor, `plane` (2 x 4) their x, y in the moved output LiDAR frame: one pass, the height
+    test first so most points (floor, walls above) cost three multiply-adds.
+    """
     k = nearest.shape[1]
     nearest[:] = np.inf
-    for i in range(x.size):
-        r2 = x[i] * x[i] + y[i] * y[i]
+    for i in range(points.shape[0]):
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        height = height_row[0] * px + height_row[1] * py + height_row[2] * pz + height_row[3]
+        if not low <= height <= high:  # also drops NaN
+            continue
+        x = plane[0, 0] * px + plane[0, 1] * py + plane[0, 2] * pz + plane[0, 3]
+        y = plane[1, 0] * px + plane[1, 1] * py + plane[1, 2] * pz + plane[1, 3]
+        r2 = x * x + y * y
         if not range_min_squared <= r2 <= range_max_squared or r2 == 0.0:
             continue
-        slot = math.floor((fast_atan2(y[i], x[i]) - angle_min) / increment + 0.5)
+        slot = math.floor((fast_atan2(y, x) - angle_min) / increment + 0.5)
         if slot < 0:
             slot += turn
         elif slot >= turn:
@@ -78,7 +94,8 @@ _KERNEL = _load_kernel()
 
 
 def points_scan(
-    points_base: npt.NDArray[np.floating],
+    points: npt.NDArray[np.floating],
+    base_to_sensor: Transform,
     base_to_laser: Transform,
     grid: AngleGrid,
     *,
@@ -90,19 +107,25 @@ def points_scan(
     min_points: int = 1,
     cluster_spread: float = math.inf,
 ) -> Scan:
-    """The obstacle scan of 3D points in the base frame, on the LiDAR's `grid`.
+    """The obstacle scan of 3D points of a sensor mounted at `base_to_sensor`, on `grid`.
 
-    `motion` moves points from the LiDAR frame at the cloud's stamp to the LiDAR frame at the
-    scan's stamp. Frame and stamp are left for the caller.
+    Heights are above the base frame's z = 0 (the floor). `motion` moves points from the
+    LiDAR frame at the cloud's stamp to the LiDAR frame at the scan's stamp. Frame and stamp
+    are left for the caller.
     """
-    points = np.asarray(points_base, dtype=np.float64).reshape(-1, 3)
-    inside = (points[:, 2] >= min_height) & (points[:, 2] <= max_height)
-    in_laser = base_to_laser.inverse().apply(points[inside]) if inside.any() else np.empty((0, 3))
-    x, y = motion.apply(in_laser[:, 0], in_laser[:, 1])
+    sensor = base_to_sensor.matrix
+    in_laser = base_to_laser.inverse().matrix @ sensor
+    moving = np.array(
+        [[motion.cos, -motion.sin, 0.0, motion.tx], [motion.sin, motion.cos, 0.0, motion.ty]]
+    )
+    plane = moving @ np.vstack([in_laser[:3], [0.0, 0.0, 0.0, 1.0]])
     nearest = np.empty((grid.count, max(1, min_points)), dtype=np.float64)
     _KERNEL(
-        np.ascontiguousarray(x),
-        np.ascontiguousarray(y),
+        np.ascontiguousarray(points).reshape(-1, 3),
+        np.ascontiguousarray(sensor[2]),
+        np.ascontiguousarray(plane),
+        min_height,
+        max_height,
         grid.angle_min,
         grid.angle_increment,
         grid.count,

@@ -15,6 +15,7 @@ from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.lib.recfunctions import structured_to_unstructured
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
@@ -466,7 +467,8 @@ _FLOAT_FIELDS = {7: 'f4', 8: 'f8'}
 
 @dataclass(frozen=True)
 class PointCloud:
-    """The x, y, z of a `sensor_msgs/PointCloud2` (N x 3 float, NaN points dropped)."""
+    """The x, y, z of a `sensor_msgs/PointCloud2` (N x 3 float32 or float64; NaN points are
+    kept: the binning skips them)."""
 
     points: npt.NDArray[np.floating]
     frame_id: str
@@ -474,7 +476,7 @@ class PointCloud:
 
 
 def cloud_from_msg(message: Any) -> PointCloud:
-    """x, y, z of every finite point; organized or not; float32 or float64; no Python loop."""
+    """x, y, z of every point; organized or not; float32 or float64; no Python loop."""
     fields = {str(f.name): f for f in message.fields}
     missing = [axis for axis in ('x', 'y', 'z') if axis not in fields]
     if missing:
@@ -516,15 +518,11 @@ def cloud_from_msg(message: Any) -> PointCloud:
     layout = np.dtype(
         {'names': ['x', 'y', 'z'], 'formats': formats, 'offsets': offsets, 'itemsize': point_step}
     )
+    # A view of the message's bytes when rows are not padded (the usual case): no copy.
     structured = np.ascontiguousarray(rows).reshape(-1).view(layout)
-    points = np.stack([structured['x'], structured['y'], structured['z']], axis=1).astype(
-        np.float64
-    )
-    finite = np.isfinite(points).all(axis=1)
+    points = structured_to_unstructured(structured)
     return PointCloud(
-        points[finite],
-        frame_name(str(message.header.frame_id)),
-        stamp_to_ns(message.header.stamp),
+        points, frame_name(str(message.header.frame_id)), stamp_to_ns(message.header.stamp)
     )
 
 
