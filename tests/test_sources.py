@@ -430,3 +430,87 @@ def test_a_revolution_missing_a_fragment_is_padded_to_the_learned_count():
     missing = slice(sum(FRAGMENTS[:3]), sum(FRAGMENTS[:4]))
     assert np.isnan(gapped[:, missing]).all()  # the LiDAR has nothing for the lost piece
     assert stream.assembler.padded == 2
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_a_source_frame_unknown_to_tf_takes_its_mounting_parameters():
+    config = cloud_config(use_tf=True, points={'topic': '/points', 'yaw': math.pi / 2})
+    stream: FusionStream[int] = FusionStream(config)
+    stream.add_transforms(
+        [StampedTransform('base_link', 'laser', (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0))],
+        static=True,
+    )
+    ys, zs = np.linspace(-0.1, 0.1, 21), np.linspace(0.05, 0.2, 6)
+    stream.add_cloud(NS, np.array([(-y, -1.5, z) for y in ys for z in zs]), NS, 'livox', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
+
+
+def test_a_source_frame_tf_cannot_relate_to_the_base_is_passed_over_and_counted():
+    stream: FusionStream[int] = FusionStream(cloud_config(use_tf=True))
+    stream.add_transforms(
+        [
+            StampedTransform('base_link', 'laser', (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0)),
+            StampedTransform('sensor_mount', 'livox', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+        ],
+        static=True,
+    )
+    stream.add_cloud(NS, np.array([(1.5, 0.0, 0.1)] * 20), NS, 'livox', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.fused is None  # the LiDAR goes on alone
+    assert stream.extras.counts.no_mounting == {'points': 1}
+
+
+def test_clock_skew_between_sources_leaves_the_skewed_one_out_and_the_scan_coming():
+    stream: FusionStream[int] = FusionStream(two_lidars())
+    fov = math.radians(270)
+    for k in range(5):
+        stamp = NS + k * NS // 10
+        skewed = lidar_scan((-0.3, -0.2), -3 * math.pi / 4, 360, fov, 'rear', stamp=stamp + 5 * NS)
+        stream.add_scan(skewed, 0, stamp, source='rear')
+        front = lidar_scan((0.3, 0.2), math.pi / 4, 360, fov, 'front', stamp=stamp)
+        (out,) = stream.add_scan(front, k, stamp + 1)
+        assert out.token == k
+    assert stream.extras.counts.missing == {'rear': 5}
+    assert stream.extras.counts.used == {}
+
+
+def test_a_cloud_without_xyz_or_with_a_short_point_step_is_a_message_error():
+    from scanfuse.errors import MessageError
+    from scanfuse.ros.messages import (
+        POINT_CLOUD,
+        cloud_from_cdr,
+        cloud_to_cdr,
+        deserialize,
+        serialize,
+        typestore,
+    )
+
+    raw = cloud_to_cdr(np.ones((4, 3)), frame_id='c', stamp_ns=1)
+    message = deserialize(raw, POINT_CLOUD)
+    store = typestore()
+    no_z = type(message)(**{**message.__dict__, 'fields': message.fields[:2]})
+    with pytest.raises(MessageError, match=r'has no z field .*needs x, y and z'):
+        cloud_from_cdr(serialize(no_z, POINT_CLOUD, store))
+    short = type(message)(**{**message.__dict__, 'point_step': 8, 'row_step': 32})
+    with pytest.raises(
+        MessageError, match=r'field z at offset 8 does not fit in a point_step of 8'
+    ):
+        cloud_from_cdr(serialize(short, POINT_CLOUD, store))
+    truncated = type(message)(**{**message.__dict__, 'data': message.data[:20]})
+    with pytest.raises(MessageError, match=r'needs 64 bytes, got 20'):
+        cloud_from_cdr(serialize(truncated, POINT_CLOUD, store))
+
+
+def test_float64_and_organized_clouds_decode_and_nan_points_are_skipped():
+    from scanfuse.ros.messages import cloud_from_cdr, cloud_to_cdr
+
+    points = np.array([[1.0, 2.0, 3.0], [np.nan, 0.0, 0.0]])
+    decoded = cloud_from_cdr(cloud_to_cdr(points, frame_id='c', stamp_ns=7, dtype='f8'))
+    np.testing.assert_array_equal(decoded.points[0], [1.0, 2.0, 3.0])
+    stream: FusionStream[int] = FusionStream(cloud_config())
+    stream.add_cloud(NS, np.array([[np.nan, 0.0, 0.1], [1.5, 0.0, 0.1]]), NS, 'base_link', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
