@@ -2,14 +2,39 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
-from scanfuse.headless_gl import choose_headless_gl, probe
+from scanfuse.headless_gl import choose_headless_gl, probe, probe_output
 
 
-def test_an_unknown_backend_does_not_probe_fine():
-    # MuJoCo refuses MUJOCO_GL values it does not know at import: the child exits non-zero.
+def test_mujoco_imports_and_steps_in_a_child_process():
+    # Everything below relies on a working MuJoCo: without one these tests must fail, not
+    # pass because every probe fails.
+    script = (
+        'import mujoco\n'
+        'model = mujoco.MjModel.from_xml_string(\'<mujoco><worldbody><geom size="1"/>'
+        "</worldbody></mujoco>')\n"
+        'data = mujoco.MjData(model)\n'
+        'mujoco.mj_step(model, data)\n'
+        'print(model.ngeom)\n'
+    )
+    env = {key: value for key, value in os.environ.items() if key != 'MUJOCO_GL'}
+    done = subprocess.run(
+        [sys.executable, '-c', script], capture_output=True, text=True, env=env, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ['1']
+
+
+def test_an_unknown_backend_does_not_probe_fine_because_mujoco_refuses_it():
+    # MuJoCo refuses MUJOCO_GL values it does not know at import: the child exits non-zero,
+    # saying so (not, say, because MuJoCo is missing).
+    works, stderr = probe_output('no-such-gl')
+    assert works is False
+    assert 'MUJOCO_GL' in stderr
+    assert 'no-such-gl' in stderr
     assert probe('no-such-gl') is False
 
 

@@ -29,18 +29,24 @@ _PROBE = (
 
 def probe(backend: str, timeout: float = 60.0) -> bool:
     """Whether MuJoCo can render depth with `backend` on this machine (in a child process)."""
+    return probe_output(backend, timeout)[0]
+
+
+def probe_output(backend: str, timeout: float = 60.0) -> tuple[bool, str]:
+    """(works, what the child printed on stderr) of the depth-rendering probe."""
     env = {**os.environ, 'MUJOCO_GL': backend, 'PYOPENGL_PLATFORM': backend}
     try:
         result = subprocess.run(  # noqa: S603 - our own interpreter and a fixed script
             [sys.executable, '-c', _PROBE],
             env=env,
             capture_output=True,
+            text=True,
             timeout=timeout,
             check=False,
         )
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return result.returncode == 0
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return False, str(err)
+    return result.returncode == 0, result.stderr
 
 
 def choose_headless_gl() -> str | None:
