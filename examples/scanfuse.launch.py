@@ -2,9 +2,10 @@
 
     ros2 launch examples/scanfuse.launch.py params_file:=examples/scanfuse_robot.yaml
 
-scanfuse is not a colcon package: the node runs as the `scanfuse` executable of the
-Python environment it was installed into (`pip install scanfuse[ros]`, or into the
-system Python of a ROS install), started here with ExecuteProcess. Inputs and
+For a pip install without a colcon workspace: the node runs as the `scanfuse` executable
+of the Python environment it was installed into (`pip install scanfuse[ros]`, or into the
+system Python of a ROS install), started here with ExecuteProcess. In a colcon workspace
+use the package's own `ros2 launch scanfuse scanfuse.launch.py` (launch/). Inputs and
 outputs can be remapped like any node's.
 """
 
