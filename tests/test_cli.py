@@ -18,9 +18,10 @@ import pytest
 
 from scanfuse.cli import main
 from scanfuse.ros.bag import fuse_bag
+from tests.support import REPOSITORY
 from tests.support.synthetic import Scene, write_scene_bag
 
-SRC = Path(__file__).resolve().parent.parent / 'src'
+SRC = REPOSITORY / 'src'
 # The CLI under `python -S` (no site-packages) with one site directory added by hand: the
 # same interpreter, but only the packages that directory holds are importable.
 RUN_IN_SITE = (
@@ -251,6 +252,7 @@ BLOCKING_SIMULATE = """
 import sys
 import scanfuse.sim.cli as sim_cli
 from scanfuse.cli import main
+from tests.support import REPOSITORY
 
 scripted = sim_cli.scripted_path
 

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from scanfuse import ConfigError, FusionConfig, Method, Resampler
+from tests.support import REPOSITORY
 
 
 def write(tmp_path, text):
@@ -89,9 +90,8 @@ def test_with_changes_validates():
 
 
 def test_shipped_example_parameter_file_holds_every_parameter():
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parent.parent / 'examples' / 'scanfuse.yaml'
+    path = REPOSITORY / 'examples' / 'scanfuse.yaml'
     params = yaml.safe_load(path.read_text())['scanfuse']['ros__parameters']
     assert set(params) == set(FusionConfig.model_fields) - {'scan_row', 'sources'}
     FusionConfig.from_ros_params(path)

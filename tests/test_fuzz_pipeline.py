@@ -45,8 +45,9 @@ from scanfuse.frames import StampedTransform
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion, PlanarPose
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import Extrinsics, Transform
+from tests.support import REPOSITORY
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = REPOSITORY
 EXAMPLES = int(os.environ.get('SCANFUSE_FUZZ_EXAMPLES', '1000'))
 STREAM_EXAMPLES = max(EXAMPLES // 5, 1)
 SEED = int(os.environ.get('SCANFUSE_FUZZ_SEED', '0'))

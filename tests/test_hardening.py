@@ -15,7 +15,6 @@ import math
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,10 +29,11 @@ from scanfuse.ros import messages
 from scanfuse.ros.messages import StampedTransform
 from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics, Transform
+from tests.support import REPOSITORY
 from tests.support.reference import row_scan_loop
 from tests.support.synthetic import Scene
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = REPOSITORY
 
 SCENE = Scene(width=160, height=120, focal=100.0, readings=360)
 

@@ -22,7 +22,9 @@ from pathlib import Path
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.support import REPOSITORY
+
+ROOT = REPOSITORY
 SOURCES = ROOT / 'src' / 'scanfuse'
 LAUNCH_FILE = ROOT / 'launch' / 'scanfuse.launch.py'
 # Import names that are ROS packages (rosdep/ament names), not Python libraries.

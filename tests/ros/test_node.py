@@ -12,7 +12,6 @@ from __future__ import annotations
 import ast
 import logging
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,10 +37,11 @@ from scanfuse.ros.params import (
     config_from_ros,
     fusion_param_specs,
 )
+from tests.support import REPOSITORY
 from tests.support.loopback import garbage_messages
 from tests.support.synthetic import Scene, scene_messages, write_bag
 
-EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
+EXAMPLES = REPOSITORY / 'examples'
 BOX = 1.2  # metres straight ahead: the box's front face
 WALL = 2.0  # metres straight ahead: the wall in the LiDAR's plane
 TOLERANCE = 0.02  # millimetre depth quantisation and pixel spacing at 1.2 m

@@ -16,6 +16,7 @@ import pytest
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.ros.live_view import make_view
+from tests.support import REPOSITORY
 
 pytest.importorskip('rclpy')
 pytest.importorskip('foxglove')
@@ -92,11 +93,8 @@ def test_a_busy_port_is_a_config_error():
 
 
 def test_the_layout_shows_lidar_and_fused_scans_in_different_colours():
-    from pathlib import Path
 
-    layout = json.loads(
-        (Path(__file__).parents[1] / 'examples' / 'foxglove_layout.json').read_text()
-    )
+    layout = json.loads((REPOSITORY / 'examples' / 'foxglove_layout.json').read_text())
     panels = layout['configById']
     scene = next(config for name, config in panels.items() if name.startswith('3D!'))
     lidar, fused = scene['topics']['/scan'], scene['topics']['/scan_fused']

@@ -20,8 +20,8 @@ from rosbags.typesys import Stores, get_typestore
 from scanfuse.config import FusionConfig
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.messages import TF_MESSAGE, scan_from_cdr, typestore
+from tests.ros.test_node_dds import BOX, SCENE_PARAMS, TOLERANCE, Loopback, ahead
 from tests.support.synthetic import Scene, write_scene_bag
-from tests.test_node_dds import BOX, SCENE_PARAMS, TOLERANCE, Loopback, ahead
 
 pytest.importorskip('rclpy')
 tf2_msgs = pytest.importorskip(

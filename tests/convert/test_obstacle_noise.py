@@ -24,7 +24,7 @@ from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.errors import InputError
 from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics
-from tests.test_obstacle import render
+from tests.convert.test_obstacle import render
 
 NOISE = 0.01  # sigma = NOISE * Z^2, metres
 DEFAULTS = FusionConfig()

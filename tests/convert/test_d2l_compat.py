@@ -10,8 +10,6 @@ line-by-line transliteration of that source.
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,8 +21,6 @@ from scanfuse.camera import CameraModel
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError, InputError
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'benchmarks'))
 from tests.support.reference import d2l_scan_loop
 
 # The upstream fixture: 640x480, CameraInfo K as below, no distortion.

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,9 +20,10 @@ from scanfuse.config import FusionConfig
 from scanfuse.ros.live import LiveFusion
 from scanfuse.ros.messages import scan_from_cdr
 from scanfuse.ros.params import NodeSettings, all_param_specs, field_bounds
+from tests.support import REPOSITORY
 from tests.support.synthetic import Scene, scene_messages
 
-EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
+EXAMPLES = REPOSITORY / 'examples'
 NAV2 = yaml.safe_load((EXAMPLES / 'nav2_scanfuse.yaml').read_text(encoding='utf-8'))
 SLAM = yaml.safe_load((EXAMPLES / 'slam_toolbox_scanfuse.yaml').read_text(encoding='utf-8'))
 COSTMAPS = ('local_costmap', 'global_costmap')

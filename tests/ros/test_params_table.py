@@ -8,7 +8,6 @@ ends). docs/parameters.md is generated from the same place and must be current.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 from pydantic import BaseModel, Field
@@ -31,8 +30,9 @@ from scanfuse.ros.params import (
     settings_from_ros,
     unit_of,
 )
+from tests.support import REPOSITORY
 
-TABLE = Path(__file__).resolve().parent.parent / 'docs' / 'parameters.md'
+TABLE = REPOSITORY / 'docs' / 'parameters.md'
 
 
 class _Example(BaseModel):

@@ -25,7 +25,7 @@ from scanfuse.errors import ConfigError, InputError
 from scanfuse.motion import PlanarMotion
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.scan import AngleGrid
-from tests.test_obstacle import (
+from tests.convert.test_obstacle import (
     BOX_5CM,
     CAMERA,
     GRID,
@@ -39,8 +39,9 @@ from tests.test_obstacle import (
     render,
     slot_at,
 )
+from tests.support import REPOSITORY
 
-SRC = Path(__file__).resolve().parent.parent / 'src'
+SRC = REPOSITORY / 'src'
 
 
 def rotation(angle: float) -> PlanarMotion:

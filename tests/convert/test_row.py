@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +14,6 @@ from scanfuse.camera import CameraModel
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError, InputError, ScanfuseError
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'benchmarks'))
 from tests.support.reference import row_scan_loop
 
 CAMERA = CameraModel.from_intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5, frame_id='cam_optical')
