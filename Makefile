@@ -45,7 +45,7 @@ test-kilted: $(KILTED)/.installed-test
 	$(KILTED_BIN)/python -m pytest -n 2 -q -m ros tests
 
 bench: $(VENV)/.installed-test
-	$(BIN)/python benchmarks/run.py
+	$(BIN)/python -m benchmarks.run
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check src tests benchmarks

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from tests.support.synthetic import Scene, write_scene_bag
 
-from common import Row
+from benchmarks.common import Row
 from scanfuse.ros.bag import fuse_bag
 
 DURATION = 60.0

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from common import Row, median_seconds
+from benchmarks.common import Row, median_seconds
 from scanfuse import CameraModel, FusionConfig, FusionPipeline, Method, Resampler, Scan
 from scanfuse.fuse.merge import merge_scans
 from scanfuse.fuse.resample import Plan, apply_plan, build_plan

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from common import Row, median_seconds
+from benchmarks.common import Row, median_seconds
 from scanfuse.camera import CameraModel
 from scanfuse.memory import MemorySettings, ObstacleMemory, Placement, points_of_scan
 from scanfuse.motion import PlanarPose

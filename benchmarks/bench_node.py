@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from tests.support.synthetic import Scene
 
-from common import Row
+from benchmarks.common import Row
 from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_from_cdr, scan_to_cdr, typestore
 from scanfuse.scan import Scan
 

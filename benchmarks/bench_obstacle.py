@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-import scenes
-from common import Row, median_seconds
+from benchmarks import scenes
+from benchmarks.common import Row, median_seconds
 from scanfuse.convert.obstacle import ObstacleProjector
 from scanfuse.convert.row import row_scan
 
@@ -38,7 +38,7 @@ _CHILD = textwrap.dedent(
     import json, statistics, sys, time
     started = time.perf_counter()
     from scanfuse.convert.obstacle import ObstacleProjector
-    import scenes
+    from benchmarks import scenes
     tiny = scenes.camera_for(32, 24)
     ObstacleProjector(tiny, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS)
     ObstacleProjector(tiny, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS, threads=2)
@@ -74,7 +74,7 @@ _CHILD = textwrap.dedent(
 
 def _child(frames: int = 201) -> dict[str, Any]:
     env = {**os.environ, 'NUMBA_NUM_THREADS': '2'}
-    env['PYTHONPATH'] = os.pathsep.join([str(HERE), *filter(None, [env.get('PYTHONPATH')])])
+    env['PYTHONPATH'] = os.pathsep.join([str(HERE.parent), *filter(None, [env.get('PYTHONPATH')])])
     affinity = 'os.sched_setaffinity(0, range(os.cpu_count() or 1))'
     script = f'import os\nif hasattr(os, "sched_setaffinity"): {affinity}\n{_CHILD}'
     done = subprocess.run(  # noqa: S603 - this interpreter running our own script

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from tests.support.reference import row_scan_loop
 
-from common import Row, median_seconds
+from benchmarks.common import Row, median_seconds
 from scanfuse.camera import CameraModel
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.row import row_scan

@@ -13,7 +13,7 @@ from pathlib import Path
 
 os.environ.setdefault('MUJOCO_GL', 'egl')
 
-from common import Row, median_seconds
+from benchmarks.common import Row, median_seconds
 from scanfuse.sim import (
     DepthBackend,
     SimConfig,

@@ -13,7 +13,8 @@ import math
 
 import numpy as np
 
-from common import Row, median_seconds
+from benchmarks.common import Row, median_seconds
+from benchmarks.scenes import EXTRINSICS, camera_for, frame
 from scanfuse.config import FusionConfig
 from scanfuse.convert.cloud import points_scan
 from scanfuse.motion import IDENTITY_MOTION
@@ -21,7 +22,6 @@ from scanfuse.pipeline import FusionPipeline
 from scanfuse.ros.messages import cloud_from_cdr, cloud_to_cdr
 from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
-from scenes import EXTRINSICS, camera_for, frame
 
 SECTION = 'sources'
 NS = 1_000_000_000

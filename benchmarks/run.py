@@ -1,4 +1,5 @@
-"""`make bench`: runs every benchmark section on one core and prints one table.
+"""`make bench` (`python -m benchmarks.run [section ...]` from the repository root): runs
+every benchmark section on one core and prints one table.
 
 Each `benchmarks/bench_*.py` module defines `run() -> list[Row]`.
 """
@@ -15,7 +16,6 @@ for var in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA
     os.environ.setdefault(var, '1')
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
 
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
@@ -42,7 +42,7 @@ def main() -> int:
     for path in sorted(HERE.glob('bench_*.py')):
         if only and path.stem.removeprefix('bench_') not in only:
             continue
-        module = importlib.import_module(path.stem)
+        module = importlib.import_module(f'benchmarks.{path.stem}')
         with console.status(f'running {path.stem}'):
             rows = module.run()
         for row in rows:

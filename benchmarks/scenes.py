@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from tests.support.render import box_depth
 
 from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
@@ -66,20 +67,7 @@ def camera_for(width: int, height: int) -> CameraModel:
 
 def true_depth(camera: CameraModel) -> np.ndarray:
     """Noise-free depth along the optical axis of the nearest surface, metres (inf: none)."""
-    x_n, y_n = (c.astype(np.float64) for c in camera.normalized_coordinates)
-    optical = EXTRINSICS.base_to_camera_optical
-    origin = np.asarray(optical.translation)
-    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1) @ optical.rotation_matrix.T
-    with np.errstate(divide='ignore', invalid='ignore'):
-        at_floor = -origin[2] / rays[..., 2]
-        depth = np.where(at_floor > 0.0, at_floor, np.inf)
-        for box in BOXES:
-            low, high = np.array(box[0::2]), np.array(box[1::2])
-            t_low, t_high = (low - origin) / rays, (high - origin) / rays
-            enter = np.nanmax(np.minimum(t_low, t_high), axis=-1)
-            leave = np.nanmin(np.maximum(t_low, t_high), axis=-1)
-            depth = np.where((enter <= leave) & (enter > 0.0) & (enter < depth), enter, depth)
-    return depth
+    return box_depth(camera, EXTRINSICS.base_to_camera_optical, BOXES)
 
 
 def frame(camera: CameraModel, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

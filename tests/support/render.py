@@ -15,6 +15,8 @@ import numpy as np
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from scanfuse.camera import CameraModel
 
 
@@ -38,41 +40,48 @@ def camera_in_world(
     return base @ body @ BODY_TO_OPTICAL
 
 
+Bounds = tuple[float, float, float, float, float, float]  # x0, x1, y0, y1, z0, z1
+
+
+def box_depth(
+    camera: CameraModel, optical_pose: Transform, boxes: Iterable[Bounds], *, floor: bool = True
+) -> np.ndarray:
+    """Depth along the optical axis of the nearest surface per pixel, metres (inf: none).
+
+    `optical_pose` places the optical frame in the frame the floor (z = 0) and the
+    axis-aligned `boxes` are given in. A ray meets a box where it is inside all three of its
+    slabs (enter = max of the near planes, leave = min of the far ones).
+    """
+    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
+    origin = np.asarray(optical_pose.translation)
+    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1) @ optical_pose.rotation_matrix.T
+    depth = np.full(x_n.shape, np.inf)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        if floor:
+            at_floor = -origin[2] / rays[..., 2]
+            depth = np.where(at_floor > 0.0, at_floor, depth)
+        for box in boxes:
+            low, high = np.array(box[0::2]), np.array(box[1::2])
+            t_low, t_high = (low - origin) / rays, (high - origin) / rays
+            enter = np.nanmax(np.minimum(t_low, t_high), axis=-1)
+            leave = np.nanmin(np.maximum(t_low, t_high), axis=-1)
+            depth = np.where((enter <= leave) & (enter > 0.0) & (enter < depth), enter, depth)
+    return depth
+
+
+def millimetres(depth: np.ndarray, *, far: float = 60.0) -> np.ndarray:
+    """16UC1 of depths in metres: rounded millimetres, 0 where none (or beyond `far`)."""
+    return np.where(np.isfinite(depth) & (depth < far), np.round(depth * 1000.0), 0).astype(
+        np.uint16
+    )
+
+
 def depth_image(
     camera: CameraModel, world_to_optical: Transform, boxes: list[Box], *, floor: bool = True
 ) -> np.ndarray:
     """16UC1 millimetres of the floor (z = 0) and `boxes` seen by `camera`; 0 = no return."""
-    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
-    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1)  # optical depth z = 1
-    direction = rays @ world_to_optical.rotation_matrix.T
-    origin = np.asarray(world_to_optical.translation)
-    depth = np.full(x_n.shape, np.inf)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        if floor:
-            t = -origin[2] / direction[..., 2]
-            depth = np.where(t > 0, np.minimum(depth, t), depth)
-        for box in boxes:
-            faces = (
-                (0, box.x_min),
-                (0, box.x_max),
-                (1, box.y_min),
-                (1, box.y_max),
-                (2, box.height),
-            )
-            for axis, value in faces:
-                t = (value - origin[axis]) / direction[..., axis]
-                hit = origin + t[..., None] * direction
-                inside = (
-                    (hit[..., 0] >= box.x_min - 1e-9)
-                    & (hit[..., 0] <= box.x_max + 1e-9)
-                    & (hit[..., 1] >= box.y_min - 1e-9)
-                    & (hit[..., 1] <= box.y_max + 1e-9)
-                    & (hit[..., 2] >= -1e-9)
-                    & (hit[..., 2] <= box.height + 1e-9)
-                )
-                depth = np.where((t > 0) & inside & (t < depth), t, depth)
-    millimetres = np.where(np.isfinite(depth), np.round(depth * 1000.0), 0.0)
-    return np.clip(millimetres, 0, 65535).astype(np.uint16)
+    bounds = [(b.x_min, b.x_max, b.y_min, b.y_max, 0.0, b.height) for b in boxes]
+    return millimetres(box_depth(camera, world_to_optical, bounds, floor=floor))
 
 
 def ray_to_circle(

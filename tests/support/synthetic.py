@@ -35,6 +35,7 @@ from scanfuse.ros.messages import (
 )
 from scanfuse.scan import Scan
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+from tests.support.render import box_depth, millimetres
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -124,32 +125,20 @@ class Scene:
 
     def depth_mm(self) -> npt.NDArray[np.uint16]:
         """The depth image (16UC1 millimetres, 0 = no return) of floor, box and wall."""
-        x_n, y_n = self.camera.normalized_coordinates
-        rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1).astype(np.float64)
         camera_body = Transform.from_rpy(
             0.0, self.camera_pitch, 0.0, (self.camera_x, 0.0, self.camera_height)
         )
-        pose = (camera_body @ BODY_TO_OPTICAL).matrix
-        direction = rays @ pose[:3, :3].T  # base-frame direction per unit optical depth
-        origin = pose[:3, 3]
-        depth = np.full(x_n.shape, np.inf)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            # Floor z = 0, wall x = wall_x, box front x = box_x and top z = box_height.
-            for axis, value in ((2, 0.0), (0, self.wall_x), (0, self.box_x), (2, self.box_height)):
-                t = (value - origin[axis]) / direction[..., axis]
-                hit = origin + t[..., None] * direction
-                valid = t > 0.0
-                if value == self.box_x and axis == 0:
-                    valid &= (np.abs(hit[..., 1]) <= self.box_half_width) & (
-                        hit[..., 2] <= self.box_height
-                    )
-                elif axis == 2 and value == self.box_height:
-                    valid &= (np.abs(hit[..., 1]) <= self.box_half_width) & (
-                        (hit[..., 0] >= self.box_x) & (hit[..., 0] <= self.box_x + self.box_depth)
-                    )
-                depth = np.where(valid & (t < depth), t, depth)
-        millimetres = np.where(np.isfinite(depth), np.round(depth * 1000.0), 0.0)
-        return np.clip(millimetres, 0, 65535).astype(np.uint16)
+        wall = (self.wall_x, self.wall_x + 1.0, -100.0, 100.0, -1.0, 100.0)
+        box = (
+            self.box_x,
+            self.box_x + self.box_depth,
+            -self.box_half_width,
+            self.box_half_width,
+            0.0,
+            self.box_height,
+        )
+        depth = box_depth(self.camera, camera_body @ BODY_TO_OPTICAL, [wall, box])
+        return millimetres(depth, far=65.535)
 
     def scan_stamps(self) -> list[int]:
         count = round(self.duration * self.scan_hz)
