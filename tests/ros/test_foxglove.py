@@ -92,8 +92,7 @@ def test_a_busy_port_is_a_config_error():
             make_view(FusionConfig(), port)
 
 
-def test_the_layout_shows_lidar_and_fused_scans_in_different_colours():
-
+def test_the_layout_shows_lidar_fused_and_remembered_scans_in_different_colours():
     layout = json.loads((REPOSITORY / 'examples' / 'foxglove_layout.json').read_text())
     panels = layout['configById']
     scene = next(config for name, config in panels.items() if name.startswith('3D!'))
@@ -102,6 +101,10 @@ def test_the_layout_shows_lidar_and_fused_scans_in_different_colours():
     assert fused['visible']
     assert lidar['colorMode'] == fused['colorMode'] == 'flat'
     assert lidar['flatColor'] != fused['flatColor']
+    # The remembered obstacles in their own colour, on the topic the node publishes them on.
+    memory = scene['topics'][FusionConfig().memory_scan_topic]
+    assert memory['visible']
+    assert memory['flatColor'] not in {lidar['flatColor'], fused['flatColor']}
     image = next(config for name, config in panels.items() if name.startswith('Image!'))
     assert image['imageMode']['imageTopic'] == '/camera/depth/image_raw'
     assert set(layout['layout'].values()) >= set(panels)
