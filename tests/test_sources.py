@@ -514,3 +514,20 @@ def test_float64_and_organized_clouds_decode_and_nan_points_are_skipped():
     stream.add_cloud(NS, np.array([[np.nan, 0.0, 0.1], [1.5, 0.0, 0.1]]), NS, 'base_link', 'points')
     (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
     assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
+
+
+def test_the_shipped_several_sensors_example_loads_with_every_source():
+    from tests.support import REPOSITORY
+
+    config = FusionConfig.from_ros_params(REPOSITORY / 'examples' / 'scanfuse_multi.yaml')
+    sources = config.sources
+    assert [s.name for s in sources.lidars] == ['front', 'rear']
+    assert [s.name for s in sources.cameras] == ['front_depth', 'rear_depth']
+    assert [s.name for s in sources.clouds] == ['livox']
+    # The first LiDAR and camera are the primary pair, in the one-source parameters too.
+    assert config.scan_topic == '/front/scan'
+    assert config.depth_topic == '/front_camera/depth/image_rect_raw'
+    assert (config.camera_x, config.camera_height) == (0.4, 0.45)
+    assert sources.cameras[1].min_obstacle_height == 0.05
+    stream: FusionStream[int] = FusionStream(config)
+    assert set(stream.extras.names) == {'rear', 'rear_depth', 'livox'}
