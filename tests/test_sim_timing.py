@@ -173,6 +173,17 @@ def test_each_beam_is_cast_at_its_own_time_while_the_robot_turns():
     )
 
 
+def test_sensors_see_the_pose_the_odometry_reads():
+    simulation = Simulation(SimConfig(world='room', resolution=SMALL, noise=False))
+    simulation.set_command(0.3, 1.0)
+    simulation.advance_to_step(100)
+    # The free joint's position is the base's: the poses the sensors use are of this step,
+    # not of the one before (mj_step integrates after computing them).
+    position, _ = simulation.base_pose()
+    assert position == pytest.approx(simulation.data.qpos[0:3], abs=1e-12)
+    assert simulation.time == pytest.approx(0.2)
+
+
 def test_bad_timing_settings_are_refused():
     with pytest.raises(SimError, match=r'depth_latency -0\.01 s must be in \[0, 1\] s'):
         SimConfig(depth_latency=-0.01)

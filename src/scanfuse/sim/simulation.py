@@ -586,6 +586,8 @@ class Simulation:
         """Let the robot sink onto its wheels, then restart the clock and the odometry."""
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, nstep=round(SETTLE_TIME / self.config.timestep))
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
         self.data.time = 0.0
         self._step = 0
         self.data.qvel[:] = 0.0
@@ -605,6 +607,11 @@ class Simulation:
         steps = step - self._step
         if steps > 0:
             mujoco.mj_step(self.model, self.data, nstep=steps)
+            # mj_step leaves the body and camera poses of the state before its last
+            # integration: bring them to the new joint positions the odometry reads, so that
+            # every sensor, the truth and the odometry describe the same instant.
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_camlight(self.model, self.data)
             self._step = step
             self._update_odometry(steps * self.config.timestep)
 
