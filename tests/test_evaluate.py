@@ -219,3 +219,40 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     assert turning['obstacle'].false_obstacle_rate < 0.005
     assert turning['obstacle-uncompensated'].false_obstacle_rate > 0.02
     assert turning['obstacle'].median_error < turning['obstacle-uncompensated'].median_error
+
+
+def test_unknown_turning_trial_is_refused():
+    from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
+
+    with pytest.raises(ConfigError, match=r"unknown turning trial 'spin'; choose from turn-in"):
+        Evaluation(EvaluationSettings.quick(turning=('spin',)))
+
+
+def test_turning_trials_pass_their_obstacles_without_touching_them():
+    from scanfuse.evaluate.closed_loop import (
+        ARC_RATE,
+        ARC_SPEED,
+        TURNING_TRIALS,
+        turning_world,
+    )
+
+    assert set(TURNING_TRIALS) == {'turn-in-place', 'arc'}
+    world = turning_world()
+    radius = ARC_SPEED / ARC_RATE  # 0.4 / 0.8: 0.5 m, to the left of the start heading
+    assert radius == pytest.approx(0.5)
+    low = [o for o in world.obstacles if o.kind in {'low_box', 'lamp_base'}]
+    assert len(low) == 4
+    robot = 0.18
+    for obstacle in world.obstacles:
+        if obstacle.kind == 'wall':
+            continue
+        # The footprint's outline, points at most 1 cm apart.
+        corners = obstacle.footprint
+        edges = np.roll(corners, -1, axis=0) - corners
+        t = np.linspace(0.0, 1.0, 50)[:, None, None]
+        outline = (corners[None] + t * edges[None]).reshape(-1, 2)
+        # Turning in place at the origin: the chassis sweeps a disc of its radius.
+        assert np.hypot(*outline.T).min() > robot + 0.5
+        # The arc about (0, 0.5): the chassis sweeps an annulus radius +- 0.18 m.
+        off_arc = np.abs(np.hypot(outline[:, 0], outline[:, 1] - radius) - radius)
+        assert off_arc.min() > robot + 0.05, obstacle.name

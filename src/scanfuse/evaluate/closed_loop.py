@@ -466,8 +466,8 @@ TURNING_BOUNDS = (-1.6, 2.2, -1.6, 2.2)
 def turning_world(seed: int = 0) -> World:
     """Four low obstacles and a lamp around the robot at the origin, clear of both turns.
 
-    The arc (radius 0.5 m about (0, 0.5)) passes 0.3-0.5 m from the obstacles' centres
-    outside it; turning in place, each is 1.0-1.4 m away.
+    The arc (radius 0.5 m about (0, 0.5)) passes 0.46-0.92 m from the obstacles' centres;
+    turning in place, each is 1.0-1.4 m away.
     """
     obstacles = room_walls(TURNING_BOUNDS)
     obstacles.append(low_box('box_ahead', (1.0, -0.1), 0.3, (0.3, 0.2, 0.10)))
