@@ -123,3 +123,11 @@ def test_a_stretched_sweep_fills_the_gap_with_the_nearer_neighbour():
     out = deskew_scan(scan_of(ranges), turn, np.zeros(8), np.zeros(8))
     assert out.ranges[4] == pytest.approx(5.0)
     assert out.ranges[5] == pytest.approx(5.0)
+
+
+def test_the_same_stamp_twice_is_one_sample_not_out_of_order():
+    history = OdometryHistory()
+    assert history.add(NS, PlanarPose(1.0, 0.0, 0.5))
+    assert history.add(NS, PlanarPose(1.0, 0.0, 0.5 + 1e-16))  # /odom after TF
+    assert history.out_of_order == 0
+    assert len(history) == 1

@@ -150,7 +150,9 @@ def simulate(
     world: Annotated[str, typer.Option(help='room | bookshelf | barricade | clutter')] = (
         'bookshelf'
     ),
-    path: Annotated[str, typer.Option(help='scripted drive: straight | rotate | lap')] = 'straight',
+    path: Annotated[
+        str, typer.Option(help='scripted drive: straight | rotate | rotate-fast | arc | lap')
+    ] = 'straight',
     duration: Annotated[float, typer.Option(help='simulated seconds')] = 20.0,
     seed: Annotated[int, typer.Option(help='world layout and sensor noise seed')] = 0,
     lidar: Annotated[str, typer.Option(help='rplidar-a2 | hokuyo-ust10lx')] = 'rplidar-a2',
@@ -159,6 +161,9 @@ def simulate(
     depth_rate: Annotated[
         float | None, typer.Option(help='depth images per second (default: the camera rate)')
     ] = None,
+    depth_latency: Annotated[
+        float, typer.Option(help='seconds from a depth exposure to its delivery (log time)')
+    ] = 0.040,
     no_noise: Annotated[bool, typer.Option('--no-noise', help='perfect sensors')] = False,
     depth_backend: Annotated[
         str,
@@ -189,6 +194,7 @@ def simulate(
             camera=camera,
             resolution=resolution,
             depth_rate=depth_rate,
+            depth_latency=depth_latency,
             noise=not no_noise,
             depth_backend=depth_backend,
             snapshot=snapshot,

@@ -208,8 +208,10 @@ class OdometryHistory:
             self.rejected += 1
             return False
         if self._stamps and stamp_ns <= self._stamps[-1]:
-            if stamp_ns == self._stamps[-1] and pose == self._poses[-1]:
-                return True  # the same sample twice (TF and Odometry both carry it)
+            if stamp_ns == self._stamps[-1]:
+                # The same instant twice: /odom and TF odom -> base_link carry one estimate
+                # (their quaternions may differ in the last bit). The first one stands.
+                return True
             self.out_of_order += 1
             return False
         if self._stamps and self._breaks_from(self._stamps[-1], self._poses[-1], stamp_ns, pose):

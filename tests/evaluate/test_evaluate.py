@@ -12,11 +12,11 @@ from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import ConfigError
 from scanfuse.evaluate.closed_loop import clutter_goal, odom_to_world, world_to_odom
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
-from scanfuse.evaluate.methods import METHODS, MethodRunner, method_spec
+from scanfuse.evaluate.methods import METHODS, MethodStream, method_spec
 from scanfuse.evaluate.results import EvaluationResult, ResultsError
 from scanfuse.scan import Scan
 from scanfuse.sim.sensors import camera_profile, lidar_profile
-from scanfuse.sim.simulation import LidarFrame
+from scanfuse.sim.simulation import DepthFrame, LidarFrame
 from scanfuse.sim.worlds import Pose2D, barricade_world, make_world
 from scanfuse.transforms import Extrinsics
 
@@ -41,6 +41,9 @@ def test_methods_are_config_variants_of_the_one_pipeline():
     assert d2l.d2l_compat is True
     assert d2l.scan_height == 10
     assert METHODS['obstacle'].config(BASE, CAMERA).method is Method.OBSTACLE
+    assert METHODS['obstacle'].config(BASE, CAMERA).motion_compensation is True
+    uncompensated = METHODS['obstacle-uncompensated'].config(BASE, CAMERA)
+    assert (uncompensated.method, uncompensated.motion_compensation) == (Method.OBSTACLE, False)
     # The robot's mounting is kept by every variant.
     assert all(METHODS[n].config(BASE, CAMERA).camera_x == 0.12 for n in METHODS)
 
@@ -64,16 +67,34 @@ def wall_scan(distance: float) -> Scan:
 
 def test_lidar_method_passes_the_scan_through_and_fusion_only_adds():
     scan = wall_scan(5.0)
+    frame = LidarFrame(2_000_000_000, scan, scan, Pose2D(0.0, 0.0, 0.0), (0.0, 0.0, 0.3))
     # A wall at Z = 1 m filling the image reaches into the collision slab:
     # fusion shortens slots in view, and never lengthens any.
     depth = np.full((CAMERA.height, CAMERA.width), 1000, dtype=np.uint16)
-    lidar = MethodRunner(METHODS['lidar'], BASE, CAMERA).scan(scan, depth, CAMERA)
-    assert lidar is scan
-    fused = MethodRunner(METHODS['obstacle'], BASE, CAMERA).scan(scan, depth, CAMERA)
+    image = DepthFrame(1_980_000_000, depth, CAMERA, delivered_ns=1_990_000_000)
+    lidar = MethodStream('lidar', BASE, CAMERA)
+    assert lidar.add_depth(image, 'camera_depth_optical_frame') == []
+    # The LiDAR alone: the driver's scan, released as it arrives.
+    assert lidar.add_scan(frame) == [(frame, scan)]
+    obstacle = MethodStream('obstacle', BASE, CAMERA)
+    # No image yet: the LiDAR scan as it is (no CameraInfo: passed through).
+    assert obstacle.add_scan(frame) == [(frame, scan)]
+    assert obstacle.add_depth(image, 'camera_depth_optical_frame') == []
+    later = LidarFrame(
+        2_010_000_000,
+        scan.with_ranges(scan.ranges, stamp_ns=2_010_000_000),
+        scan,
+        Pose2D(0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.3),
+    )
+    [(released, fused)] = obstacle.add_scan(later)
+    assert released is later
     assert np.all(fused.ranges <= scan.ranges)
     assert np.any(fused.ranges < 2.0)
-    # No image yet: the LiDAR scan as it is.
-    assert MethodRunner(METHODS['obstacle'], BASE, CAMERA).scan(scan, None, CAMERA) is scan
+    counts = obstacle.counts
+    assert counts is not None
+    # Fused once (30 ms between the image and the scan, within max_time_offset), no odometry.
+    assert (counts.scans, counts.fused, counts.compensated, counts.passed_through) == (2, 1, 0, 1)
 
 
 def test_slot_truth_in_the_barricade_world():
@@ -174,4 +195,65 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     assert (lidar_loop.trials, lidar_loop.collisions) == (1, 1)
     assert (obstacle_loop.trials, obstacle_loop.collisions) == (1, 0)
     assert result.compare(result)['obstacle']['collisions'] == 0
-    assert 'obstacle' in (out / 'report.md').read_text()
+    report = (out / 'report.md').read_text()
+    assert 'obstacle' in report
+    # The report states the sensor timing the numbers were measured under.
+    for fact in ('LiDAR rplidar-a2 at 10 Hz', 'depth camera at 15 Hz', '40 ms later', '50 Hz'):
+        assert fact in report, fact
+    # Every scored scan went through each method's stream; with the wheel odometry every
+    # fused scan of `obstacle` was compensated and de-skewed, none of the uncompensated one.
+    compensated = result.methods['obstacle'].stream
+    uncompensated = result.methods['obstacle-uncompensated'].stream
+    assert compensated['scans'] == uncompensated['scans'] > 0
+    assert compensated['compensated'] == compensated['fused'] == compensated['scans']
+    assert compensated['deskewed'] == compensated['scans']
+    assert uncompensated['compensated'] == uncompensated['deskewed'] == 0
+    assert result.methods['lidar'].stream == {}
+    # Turning in place at 1.5 rad/s a scan's last beams come 0.15 rad after its first and
+    # an image up to 33 ms (3 degrees) from the scan: uncompensated, walls and boxes move
+    # off their true slots, compensated they do not.
+    turning = {
+        name: result.methods[name].scan_by_world['turn-in-place']
+        for name in ('obstacle-no-memory', 'obstacle-uncompensated')
+    }
+    compensated_turn, uncompensated_turn = turning.values()
+    assert compensated_turn.false_obstacle_rate < 0.005
+    assert uncompensated_turn.false_obstacle_rate > 0.02
+    assert compensated_turn.median_error < uncompensated_turn.median_error
+
+
+def test_unknown_turning_trial_is_refused():
+    from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
+
+    with pytest.raises(ConfigError, match=r"unknown turning trial 'spin'; choose from turn-in"):
+        Evaluation(EvaluationSettings.quick(turning=('spin',)))
+
+
+def test_turning_trials_pass_their_obstacles_without_touching_them():
+    from scanfuse.evaluate.closed_loop import (
+        ARC_RATE,
+        ARC_SPEED,
+        TURNING_TRIALS,
+        turning_world,
+    )
+
+    assert set(TURNING_TRIALS) == {'turn-in-place', 'arc'}
+    world = turning_world()
+    radius = ARC_SPEED / ARC_RATE  # 0.4 / 0.8: 0.5 m, to the left of the start heading
+    assert radius == pytest.approx(0.5)
+    low = [o for o in world.obstacles if o.kind in {'low_box', 'lamp_base'}]
+    assert len(low) == 4
+    robot = 0.18
+    for obstacle in world.obstacles:
+        if obstacle.kind == 'wall':
+            continue
+        # The footprint's outline, points at most 1 cm apart.
+        corners = obstacle.footprint
+        edges = np.roll(corners, -1, axis=0) - corners
+        t = np.linspace(0.0, 1.0, 50)[:, None, None]
+        outline = (corners[None] + t * edges[None]).reshape(-1, 2)
+        # Turning in place at the origin: the chassis sweeps a disc of its radius.
+        assert np.hypot(*outline.T).min() > robot + 0.5
+        # The arc about (0, 0.5): the chassis sweeps an annulus radius +- 0.18 m.
+        off_arc = np.abs(np.hypot(outline[:, 0], outline[:, 1] - radius) - radius)
+        assert off_arc.min() > robot + 0.05, obstacle.name

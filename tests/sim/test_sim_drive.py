@@ -96,12 +96,16 @@ def test_controller_sees_every_scan_with_odometry_and_the_latest_depth():
     simulation = Simulation(SimConfig(world='bookshelf', **LOW))
     trace = Trace()
     simulation.run(2.0, controller, trace)
-    assert len(seen) == len(trace.lidar) == 21  # 10 Hz over [0, 2] s, both ends
+    # 10 Hz sweeps from 0 s, each delivered at its end: 0.1, 0.2, ..., 2.0 s.
+    assert len(seen) == len(trace.lidar) == 20
     assert [o.scan.stamp_ns for o in seen] == [f.scan.stamp_ns for f in trace.lidar]
+    assert [o.time for o in seen] == pytest.approx([0.1 * k for k in range(1, 21)])
     assert all(len(o.scan) == 1080 for o in seen)
+    # The first image, exposed at 0 s, is delivered at 0.04 s: before the first scan.
     assert seen[0].depth is not None
     assert seen[0].depth.shape == (144, 256)
-    assert seen[-1].odometry.x == pytest.approx(0.2 * 2.0, abs=0.05)
+    # Driving from 0.1 s (the first command) to 2.0 s at 0.2 m/s.
+    assert seen[-1].odometry.x == pytest.approx(0.2 * 1.9, abs=0.05)
 
 
 def test_wheel_odometry_integrates_hand_worked_motions():
@@ -120,7 +124,7 @@ def test_bad_run_settings_are_refused():
     with pytest.raises(SimError, match='duration must be positive'):
         simulation.run(0.0, scripted_path('straight'), Trace())
     with pytest.raises(
-        SimError, match=r"unknown path 'zigzag'; choose one of straight, rotate, lap"
+        SimError, match=r"unknown path 'zigzag'; choose one of straight, rotate, rotate-fast, arc"
     ):
         scripted_path('zigzag')
     with pytest.raises(SimError, match=r'depth_rate 0\.0 Hz must be in'):
@@ -143,8 +147,9 @@ def test_fused_controller_sees_the_shelf_boards_the_lidar_misses():
     # The LiDAR looks between the boards to the wall at 2.8 m; fused, the boards are 2.0 m away.
     assert lidar_ahead == pytest.approx(2.8, abs=0.01)
     assert fused_ahead == pytest.approx(2.0, abs=0.05)
-    # A depth image is taken before the scan at the same instant, so every scan is fused.
-    assert len(ahead) == 4
+    # Scans arrive at 0.1, 0.2, 0.3 s; the first image (exposed at 0 s) at 0.04 s, so every
+    # scan is fused.
+    assert len(ahead) == 3
     assert all(fused == pytest.approx(2.0, abs=0.05) for fused, _ in ahead)
 
 
@@ -170,5 +175,6 @@ def test_a_40_hz_lidar_is_sampled_at_40_hz():
     trace = Trace()
     Simulation(config).run(0.5, scripted_path('rotate'), trace)
     stamps = np.array([frame.stamp_ns for frame in trace.lidar])
-    assert len(stamps) == 21  # 0, 25, ..., 500 ms
-    assert np.diff(stamps) == pytest.approx(np.full(20, 25_000_000), abs=2_000_000)
+    # Sweeps from 0, 25, ..., 475 ms, delivered 25 ms later; on 2 ms physics steps.
+    assert len(stamps) == 20
+    assert np.diff(stamps) == pytest.approx(np.full(19, 25_000_000), abs=1_000_000)

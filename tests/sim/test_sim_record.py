@@ -64,8 +64,12 @@ def test_bag_is_one_mcap_file_with_every_topic_and_type(bag):
         static = next(c for c in reader.connections if c.topic == '/tf_static')
         durability = static.ext.offered_qos_profiles[0].durability
     assert types == EXPECTED_TYPES
-    assert counts['/scan'] == counts['/scan_truth'] == 76  # 10 Hz over [0, 7.5] s
+    # 10 Hz sweeps from 0 to 7.4 s, delivered at their end (the one at 7.5 s would end later).
+    assert counts['/scan'] == counts['/scan_truth'] == 75
+    # 5 Hz exposures at 0, 0.2, ..., 7.4 s, delivered 40 ms later, before 7.5 s.
     assert counts['/camera/depth/image_raw'] == counts['/camera/depth/camera_info'] == 38
+    # Odometry, TF and the true pose at 50 Hz over [0, 7.5] s, both ends.
+    assert counts['/odom'] == counts['/tf'] == counts['/ground_truth/pose'] == 376
     assert counts['/tf_static'] == 1
     assert counts['/collisions'] >= 1
     assert durability == QosDurability.TRANSIENT_LOCAL
@@ -104,6 +108,31 @@ def test_messages_hold_what_the_simulation_produced(bag):
     assert early_pose.pose.position.x > 0.5
 
 
+def test_log_times_are_delivery_times_and_stamps_the_sensors(bag):
+    log: dict[str, list[tuple[int, int]]] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for connection, log_time, raw in reader.messages():
+            if connection.topic in {'/scan', '/camera/depth/image_raw', '/odom'}:
+                message = reader.deserialize(raw, connection.msgtype)
+                stamp = message.header.stamp.sec * 10**9 + message.header.stamp.nanosec
+                log.setdefault(connection.topic, []).append((log_time, stamp))
+    # A scan is logged when its 100 ms sweep ends, stamped with its first beam.
+    assert {t - s for t, s in log['/scan']} == {100_000_000}
+    # An image is logged 40 ms (the camera's latency) after its exposure.
+    assert {t - s for t, s in log['/camera/depth/image_raw']} == {40_000_000}
+    # Odometry at its stamp, every 20 ms.
+    odom = np.array(log['/odom'])
+    assert np.all(odom[:, 0] == odom[:, 1])
+    assert set(np.diff(odom[:, 1])) == {20_000_000}
+    scans = reader_scans(bag)
+    assert scans[0].time_increment == pytest.approx(0.1 / 1080, rel=1e-6)
+    assert scans[0].scan_time == pytest.approx(0.1)
+
+
+def reader_scans(path: Path) -> list:
+    return read_all(path)['/scan']
+
+
 def test_independent_mcap_reader_decodes_the_bag(bag):
     seen: dict[str, int] = {}
     with bag.open('rb') as stream:
@@ -139,7 +168,7 @@ def test_a_folder_name_gives_a_rosbag2_directory(tmp_path):
     out = tmp_path / 'run_dir'
     summary = record(CONFIG, scripted_path('rotate'), 0.3, out)
     assert (out / 'metadata.yaml').is_file()
-    assert summary.counts['/scan'] == 4
+    assert summary.counts['/scan'] == 3  # delivered at 0.1, 0.2, 0.3 s
     with pytest.raises(SimError, match='exists already; remove it'):
         record(CONFIG, scripted_path('rotate'), 0.3, out)
 

@@ -2,14 +2,22 @@
 
 The navigator knows only what a real robot knows: its wheel odometry and the
 scan the method gives it. It marks every return on a grid in the odometry
-frame, plans with A* on that grid inflated by its radius, follows the path, and
+frame, at the odometry pose of the scan's stamp (as a costmap looks the scan up in
+TF), plans with A* on that grid inflated by its radius, follows the path, and
 a stop/slow zone on the current scan guards its front. Whether it collides is
 decided by MuJoCo's contacts, whether it arrived by its true pose.
+
+The simulator runs in real sensor time (`Simulation.run`) and `StreamFeed` hands every
+event to each method's `FusionStream` as the node would receive it: odometry at 50 Hz,
+depth images and CameraInfo at their delivery, scans at the end of their sweep. The
+navigator steps on every scan the driving method's stream releases, when it releases it.
+Turning trials (`TURNING_TRIALS`) drive a scripted turn past low obstacles instead.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -17,23 +25,36 @@ import numpy as np
 
 from scanfuse.evaluate.mapping import GridSpec
 from scanfuse.evaluate.planner import SafetyZones, astar, disk_offsets, inflate, path_length
+from scanfuse.motion import OdometryHistory, PlanarPose
+from scanfuse.sim.drive import Arc, Rotate
+from scanfuse.sim.sensors import OPTICAL_FRAME
 from scanfuse.sim.worlds import (
     ROBOT_AT_ORIGIN,
     SMALL_ROOM,
     Pose2D,
     World,
     bookshelf,
+    floor_lamp,
+    low_box,
     make_world,
     room_walls,
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Sequence
 
     import numpy.typing as npt
 
+    from scanfuse.evaluate.methods import MethodStream
     from scanfuse.scan import Scan
-    from scanfuse.sim.simulation import Contact, LidarFrame, Simulation
+    from scanfuse.sim.simulation import (
+        Contact,
+        Controller,
+        DepthFrame,
+        LidarFrame,
+        Simulation,
+        StateSample,
+    )
 
 LOW_KINDS = ('low_box', 'lamp_base', 'cable_tray')
 CLOSED_LOOP_TIME_LIMIT = 45.0
@@ -157,10 +178,13 @@ class Navigator:
         self.zones = SafetyZones(self.radius)
         self.hits = np.zeros((self.spec.height, self.spec.width), dtype=np.int32)
 
-    def step(self, scan: Scan, pose: Pose2D) -> tuple[float, float]:
-        """(v, omega) for the scan just received, with the robot at `pose` (odometry frame)."""
+    def step(
+        self, scan: Scan, pose: Pose2D, scan_pose: Pose2D | None = None
+    ) -> tuple[float, float]:
+        """(v, omega) for the scan just received, with the robot at `pose` (odometry frame)
+        now and at `scan_pose` (default `pose`) at the scan's stamp."""
         points = self._points_in_robot(scan)
-        self._mark(points, pose)
+        self._mark(points, scan_pose or pose)
         to_goal = math.hypot(self.goal[0] - pose.x, self.goal[1] - pose.y)
         if to_goal <= self.goal_tolerance:
             self.done = True
@@ -270,11 +294,10 @@ class Navigator:
 
 @dataclass(frozen=True)
 class FrameRecord:
-    """What one LiDAR frame of a trial leaves for the evaluation."""
+    """What one scan the navigator drove on leaves for the evaluation."""
 
     lidar: LidarFrame
-    depth: npt.NDArray[np.uint16]
-    odometry: Pose2D  # odometry frame
+    odometry: Pose2D  # odometry frame, at the scan's stamp
     used: Scan  # the scan the navigator drove on
 
 
@@ -303,20 +326,71 @@ class DriveLog:
     true_path: list[tuple[float, float]] = field(default_factory=list)
 
 
-STATE_STEP = 0.02  # seconds between contact checks
+Released = Callable[['MethodStream', 'LidarFrame', 'Scan'], None]
+
+
+@dataclass
+class StreamFeed:
+    """A simulation sink that feeds every method's stream as the node is fed, in time order.
+
+    `released` gets each scan a stream releases (the stream, the simulator's frame, the
+    scan to use). The feed also keeps the contacts, the true path and the odometry.
+    """
+
+    streams: Sequence[MethodStream]
+    released: Released
+    log: DriveLog = field(default_factory=DriveLog)
+    odometry: OdometryHistory = field(default_factory=OdometryHistory)
+
+    def _emit(self, stream: MethodStream, outputs: list[tuple[LidarFrame, Scan]]) -> None:
+        for frame, scan in outputs:
+            self.released(stream, frame, scan)
+
+    def on_state(self, sample: StateSample) -> None:
+        self.log.true_path.append((sample.position[0], sample.position[1]))
+        odometry = sample.odometry
+        self.odometry.add(sample.stamp_ns, PlanarPose(odometry.x, odometry.y, odometry.yaw))
+        for stream in self.streams:
+            self._emit(stream, stream.add_state(sample))
+
+    def on_depth(self, frame: DepthFrame) -> None:
+        for stream in self.streams:
+            self._emit(stream, stream.add_depth(frame, OPTICAL_FRAME))
+
+    def on_lidar(self, frame: LidarFrame) -> None:
+        for stream in self.streams:
+            self._emit(stream, stream.add_scan(frame))
+
+    def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
+        del stamp_ns  # every contact carries its own stamp
+        self.log.contacts.extend(contacts)
+
+    def finish(self) -> None:
+        for stream in self.streams:
+            self._emit(stream, stream.finish())
+
+    def odometry_at(self, stamp_ns: int) -> Pose2D | None:
+        found = self.odometry.pose_at(stamp_ns).pose
+        return None if found is None else Pose2D(found.x, found.y, found.yaw)
+
+
 AFTER_CONTACT = 3.0  # seconds the run goes on after the first contact (the wheels slip)
 
 
 def drive(
     sim: Simulation,
     trial: TrialSpec,
-    scan_of: Callable[[Scan, npt.NDArray[np.uint16]], Scan],
+    driver: MethodStream,
     *,
-    method: str,
+    observers: Sequence[MethodStream] = (),
+    on_scan: Released | None = None,
     keep_frames: bool = False,
-    on_frame: Callable[[LidarFrame, npt.NDArray[np.uint16]], None] | None = None,
 ) -> tuple[TrialOutcome, DriveLog]:
-    """Run one closed-loop trial: LiDAR and depth at the LiDAR's rate, contacts at 50 Hz."""
+    """Run one closed-loop trial driving on what `driver` releases, in real sensor time.
+
+    `observers` are fed the same events (scoring, maps); `on_scan` sees every scan any
+    stream releases.
+    """
     world = sim.world
     goal = world_to_odom(world.start, *trial.goal)
     bounds = world.bounds
@@ -324,39 +398,39 @@ def drive(
     xs, ys = zip(*corners, strict=True)
     spec = GridSpec.covering((min(xs), max(xs), min(ys), max(ys)), 0.05, margin=0.3)
     navigator = Navigator(spec, goal, sim.robot.body_radius, lidar_x=sim.robot.lidar_x)
-    log = DriveLog()
-    period = 1.0 / sim.lidar_profile.rate
-    substeps = max(1, round(period / STATE_STEP))
-    first_contact: Contact | None = None
-    stop_at = trial.time_limit
-    while sim.time < stop_at - 1e-9 and not navigator.done:
-        start = sim.time
-        for index in range(1, substeps + 1):
-            sim.advance(start + index * period / substeps)
-            contacts = sim.contacts()
-            if contacts:
-                log.contacts.extend(contacts)
-                if first_contact is None:
-                    first_contact = contacts[0]
-                    stop_at = min(stop_at, sim.time + AFTER_CONTACT)
-        depth = sim.depth_frame().depth
-        frame = sim.lidar_frame()
-        log.true_path.append((frame.pose.x, frame.pose.y))
-        used = scan_of(frame.scan, depth)
-        if on_frame is not None:
-            on_frame(frame, depth)
-        pose = sim.odometry.pose
+
+    def released(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
+        if on_scan is not None:
+            on_scan(stream, frame, scan)
+        if stream is not driver or navigator.done:
+            return
+        now = sim.odometry.pose
+        believed = feed.odometry_at(frame.stamp_ns) or now
         if keep_frames:
-            log.frames.append(FrameRecord(frame, depth.copy(), pose, used))
-        sim.set_command(*navigator.step(used, pose))
+            feed.log.frames.append(FrameRecord(frame, believed, scan))
+        sim.set_command(*navigator.step(scan, now, believed))
+
+    feed = StreamFeed([driver, *observers], released)
+    log = feed.log
+
+    def stop() -> bool:
+        if navigator.done:
+            return True
+        return bool(log.contacts) and sim.stamp_ns >= log.contacts[0].stamp_ns + round(
+            AFTER_CONTACT * 1e9
+        )
+
+    sim.run(trial.time_limit, None, feed, stop=stop)
     sim.set_command(0.0, 0.0)
+    feed.finish()
+    first_contact = log.contacts[0] if log.contacts else None
     final = sim.true_pose()
     distance = math.hypot(final.x - trial.goal[0], final.y - trial.goal[1])
     driven = np.asarray(log.true_path)
     travelled = float(np.hypot(*np.diff(driven, axis=0).T).sum()) if len(driven) > 1 else 0.0
     outcome = TrialOutcome(
         trial=trial.label,
-        method=method,
+        method=driver.name,
         collided=first_contact is not None,
         first_contact_kind=first_contact.kind if first_contact else '',
         first_contact_time=(
@@ -369,6 +443,69 @@ def drive(
         planned_length=navigator.planned_length(),
     )
     return outcome, log
+
+
+# ---------------------------------------------------------------- turning trials
+
+
+@dataclass(frozen=True)
+class TurningSpec:
+    """A scripted turn past low obstacles: scan metrics only (no method steers it)."""
+
+    label: str
+    duration: float  # simulated seconds
+    make_controller: Callable[[], Controller]
+    description: str
+
+
+TURN_RATE = 1.5  # rad/s, turning in place
+ARC_SPEED, ARC_RATE = 0.4, 0.8  # m/s and rad/s: a 0.5 m radius arc to the left
+TURNING_BOUNDS = (-1.6, 2.2, -1.6, 2.2)
+
+
+def turning_world(seed: int = 0) -> World:
+    """Four low obstacles and a lamp around the robot at the origin, clear of both turns.
+
+    The arc (radius 0.5 m about (0, 0.5)) passes 0.46-0.92 m from the obstacles' centres;
+    turning in place, each is 1.0-1.4 m away.
+    """
+    obstacles = room_walls(TURNING_BOUNDS)
+    obstacles.append(low_box('box_ahead', (1.0, -0.1), 0.3, (0.3, 0.2, 0.10)))
+    obstacles.append(low_box('box_left', (0.95, 0.8), -0.4, (0.2, 0.2, 0.06)))
+    obstacles.append(low_box('box_behind', (-0.9, -0.6), 0.8, (0.35, 0.2, 0.12)))
+    obstacles += floor_lamp('lamp', (-0.6, 1.25))
+    return World('turning', seed, tuple(obstacles), ROBOT_AT_ORIGIN, TURNING_BOUNDS)
+
+
+TURNING_TRIALS: dict[str, TurningSpec] = {
+    spec.label: spec
+    for spec in (
+        TurningSpec(
+            'turn-in-place',
+            5.0,
+            lambda: Rotate(TURN_RATE),
+            f'turn in place at {TURN_RATE} rad/s beside low boxes and a lamp',
+        ),
+        TurningSpec(
+            'arc',
+            6.0,
+            lambda: Arc(ARC_SPEED, ARC_RATE),
+            f'an arc of radius {ARC_SPEED / ARC_RATE:.1f} m at {ARC_SPEED} m/s and '
+            f'{ARC_RATE} rad/s past low boxes and a lamp',
+        ),
+    )
+}
+
+
+def turn(
+    sim: Simulation, spec: TurningSpec, streams: Sequence[MethodStream], on_scan: Released
+) -> DriveLog:
+    """Run one scripted turning trial, every stream fed in real sensor time."""
+    feed = StreamFeed(streams, on_scan)
+    sim.run(spec.duration, spec.make_controller(), feed)
+    sim.set_command(0.0, 0.0)
+    feed.finish()
+    return feed.log
 
 
 GOAL_REACHED = 0.3  # metres between the true pose and the goal that count as arrived

@@ -11,8 +11,17 @@
   nearest point per slot (before the noise-robust statistic), over the camera's full
   range and capped at 3 m.
 
+- `obstacle` is the shipped default, obstacle memory on; `obstacle-no-memory` the
+  instantaneous fused scan; `obstacle-uncompensated`: that one with motion_compensation
+  false: the depth frame is fused as if taken at the scan's stamp and the LiDAR is not
+  de-skewed.
+
 The row methods run with both resamplers (`-linear`, Algorithm 3, and
 `-conservative`).
+
+Every fusing method runs in its own `FusionStream`, fed as the node is fed (`MethodStream`):
+pairing, pass-through and motion compensation are the stream's. `lidar` is the driver's
+scan as it arrives, with no stream (a robot without scanfuse: not de-skewed either).
 """
 
 from __future__ import annotations
@@ -22,14 +31,17 @@ from typing import TYPE_CHECKING
 
 from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import ConfigError
-from scanfuse.pipeline import FusionPipeline
+from scanfuse.motion import PlanarPose
+from scanfuse.stream import FusionStream
 
 if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
+    from collections.abc import Iterable
 
     from scanfuse.camera import CameraModel
+    from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
+    from scanfuse.sim.simulation import DepthFrame, LidarFrame, StateSample
+    from scanfuse.stream import StreamCounts, StreamOutput
 
 # Where the low row looks: this share of the way from the centre row to the bottom.
 LOW_ROW_SHARE = 0.5
@@ -104,6 +116,22 @@ METHODS: dict[str, MethodSpec] = {
             (('method', Method.OBSTACLE), ('range_max', OBSTACLE_RANGE_MAX)),
         ),
         MethodSpec(
+            'obstacle-no-memory',
+            'obstacle without the obstacle memory (the instantaneous fused scan)',
+            (('method', Method.OBSTACLE), ('range_max', OBSTACLE_RANGE_MAX), ('memory', False)),
+        ),
+        MethodSpec(
+            'obstacle-uncompensated',
+            'obstacle-no-memory without motion compensation (depth frame and LiDAR sweep '
+            'taken as at the stamp)',
+            (
+                ('method', Method.OBSTACLE),
+                ('range_max', OBSTACLE_RANGE_MAX),
+                ('memory', False),
+                ('motion_compensation', False),
+            ),
+        ),
+        MethodSpec(
             'obstacle-nearest',
             'obstacle scan, plain nearest point per slot, full depth range',
             (
@@ -124,7 +152,15 @@ METHODS: dict[str, MethodSpec] = {
     )
 }
 # What the closed loop drives with: one of each kind, the row methods conservative.
-CLOSED_LOOP_METHODS = ('lidar', 'row-centre', 'row-low', 'd2l', 'obstacle')
+CLOSED_LOOP_METHODS = (
+    'lidar',
+    'row-centre',
+    'row-low',
+    'd2l',
+    'obstacle',
+    'obstacle-no-memory',
+    'obstacle-uncompensated',
+)
 
 
 def method_spec(name: str) -> MethodSpec:
@@ -135,16 +171,62 @@ def method_spec(name: str) -> MethodSpec:
     return spec
 
 
-class MethodRunner:
-    """Turns a LiDAR scan and a depth image into the scan a method gives the robot."""
+class MethodStream:
+    """One method fed the simulator's events as the node is fed its topics.
 
-    def __init__(self, spec: MethodSpec, base: FusionConfig, camera: CameraModel) -> None:
-        self.spec = spec
-        self.config = spec.config(base, camera)
-        self.pipeline = FusionPipeline(self.config) if spec.fuses else None
+    Odometry (the wheel odometry, 50 Hz, as nav_msgs/Odometry), CameraInfo and a depth
+    image at each image's delivery, and each scan at its delivery: `now_ns` is always the
+    simulated delivery time, and the stream releases what the node would publish then.
+    `lidar` (no fusion) releases every scan unchanged at once.
+    """
 
-    def scan(self, lidar: Scan, depth: npt.NDArray[np.generic] | None, camera: CameraModel) -> Scan:
-        """The fused scan, or the LiDAR scan for `lidar` or when there is no image yet."""
-        if self.pipeline is None or depth is None:
-            return lidar
-        return self.pipeline.fuse(lidar, depth, camera).fused
+    def __init__(
+        self,
+        name: str,
+        base: FusionConfig,
+        camera: CameraModel,
+        transforms: Iterable[StampedTransform] = (),
+    ) -> None:
+        self.name = name
+        self.spec = method_spec(name)
+        self.config = self.spec.config(base, camera)
+        self.stream: FusionStream[LidarFrame] | None = None
+        if self.spec.fuses:
+            # The node's defaults: pair with the frames already received, release at once.
+            self.stream = FusionStream(self.config, pair_wait=0.0)
+            self.stream.add_transforms(transforms, static=True)
+
+    def add_state(self, sample: StateSample) -> list[tuple[LidarFrame, Scan]]:
+        if self.stream is None:
+            return []
+        odometry = sample.odometry
+        self.stream.add_odometry(sample.stamp_ns, PlanarPose(odometry.x, odometry.y, odometry.yaw))
+        return self._out(self.stream.tick(sample.stamp_ns))
+
+    def add_depth(self, frame: DepthFrame, frame_id: str) -> list[tuple[LidarFrame, Scan]]:
+        if self.stream is None:
+            return []
+        self.stream.add_camera_info(frame.camera)
+        return self._out(
+            self.stream.add_depth(frame.stamp_ns, frame.depth, frame.arrival_ns, frame_id)
+        )
+
+    def add_scan(self, frame: LidarFrame) -> list[tuple[LidarFrame, Scan]]:
+        if self.stream is None:
+            return [(frame, frame.scan)]
+        return self._out(self.stream.add_scan(frame.scan, frame, frame.arrival_ns))
+
+    def finish(self) -> list[tuple[LidarFrame, Scan]]:
+        return [] if self.stream is None else self._out(self.stream.finish())
+
+    @property
+    def counts(self) -> StreamCounts | None:
+        return None if self.stream is None else self.stream.counts
+
+    @staticmethod
+    def _out(outputs: list[StreamOutput[LidarFrame]]) -> list[tuple[LidarFrame, Scan]]:
+        # fused None: the stream passed the LiDAR's own scan through unchanged.
+        return [
+            (output.token, output.token.scan if output.fused is None else output.fused)
+            for output in outputs
+        ]

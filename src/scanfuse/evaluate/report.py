@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.table import Table
 
@@ -27,6 +27,7 @@ MAPS_NOTE = (
     'which ends at the obstacle, with its scans and with the fused ones.'
 )
 HEADLINE_TARGETS = {'recall': 0.95, 'false_obstacle_rate': 0.005}
+STREAM_KEYS = ('scans', 'fused', 'compensated', 'deskewed', 'passed')
 
 
 def _fmt(value: float, digits: int = 3) -> str:
@@ -84,19 +85,55 @@ def _markdown_table(headers: list[str], rows: list[list[str]]) -> str:
     return '\n'.join(lines)
 
 
+def timing_note(settings: dict[str, Any]) -> str:
+    """The sensor rates and latencies the evaluation ran with, in one paragraph."""
+    from scanfuse.sim.sensors import lidar_profile  # noqa: PLC0415
+
+    lidar = lidar_profile(settings.get('lidar', 'rplidar-a2'))
+    sweep = 1.0 / lidar.rate
+    increment = sweep * abs(lidar.angle_increment) / (2 * math.pi)
+    rate = settings.get('depth_rate', float('nan'))
+    latency = settings.get('depth_latency', float('nan'))
+    return (
+        f'Sensor timing (simulated, real time): LiDAR {lidar.name} at {lidar.rate:g} Hz, '
+        f'a rotating sweep of {1000 * sweep:.0f} ms, beam i measured at stamp + i * '
+        f'time_increment ({1e6 * increment:.1f} us, scan_time / readings), cast in '
+        f'{settings.get("lidar_chunks", "?")} chunks per sweep, the scan stamped with its first '
+        f'beam and delivered at the end of the sweep; depth camera at {rate:g} Hz, stamped at '
+        f'exposure and delivered {1000 * latency:.0f} ms later; wheel odometry (not ground '
+        f'truth) at {settings.get("odometry_rate", 50.0):g} Hz. Every fusing method runs in its '
+        'own FusionStream fed as the node is (odometry, CameraInfo and images at delivery, '
+        'scans at delivery, `now` = simulated delivery time, pair_wait 0: a scan pairs with '
+        'the frames already delivered); `lidar` is the raw driver scan, not de-skewed. A '
+        "scan's ground truth is the exact truth from the LiDAR's true pose at the scan's "
+        'stamp, the instant a compensated scan describes: a raw sweep of a turning robot, '
+        'or a depth frame fused without compensation, is scored against that instant too.'
+    )
+
+
 def markdown(result: EvaluationResult) -> str:
     """report.md: what was run, the headline table, per-kind recall, maps, trials, figures."""
+    from scanfuse.evaluate.closed_loop import TURNING_TRIALS  # noqa: PLC0415
+
     settings = result.settings
+    turning = [
+        TURNING_TRIALS[name] for name in settings.get('turning', ()) if name in TURNING_TRIALS
+    ]
+    turns = ', '.join(f'`{t.label}` ({t.description})' for t in turning)
     parts = [
         '# scanfuse evaluation',
         '',
         (
             f'Worlds: {", ".join(settings["worlds"])}; {settings["trials"]} seeded clutter worlds; '
-            f'depth {settings["resolution"][0]}x{settings["resolution"][1]} at 10 Hz; '
+            f'turning trials: {turns or "none"}; '
+            f'depth {settings["resolution"][0]}x{settings["resolution"][1]}; '
             f'noise {"on" if settings["noise"] else "off"}. Tolerance {TOLERANCE_ABSOLUTE} m + '
             f'{100 * TOLERANCE_RELATIVE:.0f} % of the range. Scan metrics are measured on the '
-            'frames of the `obstacle` closed-loop runs, every method on the same frames.'
+            'scans of the `obstacle` closed-loop runs and of the turning trials (scripted: no '
+            'method steers them), every method on the same scans.'
         ),
+        '',
+        timing_note(settings),
         '',
         '## Headline',
         '',
@@ -137,7 +174,26 @@ def markdown(result: EvaluationResult) -> str:
         *(f'recall {k}' for k in kinds),
     ]
     parts += [_markdown_table(headers, rows), '']
-    parts += ['## Scan metrics per world', '']
+    parts += [
+        '## Motion compensation per method',
+        '',
+        (
+            "What each method's streams did with the scored scans: fused with a depth frame, "
+            "of those moved to the scan's stamp through odometry, LiDAR sweeps de-skewed, and "
+            'scans passed through without the camera.'
+        ),
+        '',
+    ]
+    rows = [
+        [
+            name,
+            *(str(m.stream.get(key, 0)) for key in STREAM_KEYS),
+        ]
+        for name, m in result.methods.items()
+        if m.stream
+    ]
+    parts += [_markdown_table(['method', *STREAM_KEYS], rows), '']
+    parts += ['## Scan metrics per world and turning trial', '']
     worlds = sorted({w for m in result.methods.values() for w in m.scan_by_world})
     rows = [
         [
@@ -145,12 +201,20 @@ def markdown(result: EvaluationResult) -> str:
             world,
             _fmt(m.scan_by_world[world].recall),
             _percent(m.scan_by_world[world].false_obstacle_rate),
+            _fmt(m.scan_by_world[world].median_error),
+            _fmt(m.scan_by_world[world].p95_error),
         ]
-        for name, m in result.methods.items()
         for world in worlds
+        for name, m in result.methods.items()
         if world in m.scan_by_world
     ]
-    parts += [_markdown_table(['method', 'world', 'recall', 'false obstacles'], rows), '']
+    parts += [
+        _markdown_table(
+            ['method', 'world', 'recall', 'false obstacles', 'median error (m)', 'p95 error (m)'],
+            rows,
+        ),
+        '',
+    ]
     parts += [
         '## Maps (true poses) against the true footprints',
         '',

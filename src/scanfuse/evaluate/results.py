@@ -58,6 +58,9 @@ class MethodResult:
     scan_by_world: dict[str, ScanMetrics]
     maps: dict[str, MapAgreement]
     closed_loop: ClosedLoopSummary | None
+    # What the method's streams did with the scored scans: scans, fused, compensated,
+    # deskewed, passed (empty for `lidar`, which has no stream).
+    stream: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -143,6 +146,7 @@ def _method_from_dict(data: dict[str, Any]) -> MethodResult:
         scan_by_world={k: _scan_from_dict(v) for k, v in data['scan_by_world'].items()},
         maps={k: MapAgreement(**_none_to_nan(v)) for k, v in data['maps'].items()},
         closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
+        stream={str(k): int(v) for k, v in data.get('stream', {}).items()},
     )
 
 

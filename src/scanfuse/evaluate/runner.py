@@ -1,9 +1,11 @@
 """`evaluate`: closed-loop trials, scan metrics, maps and figures for every method.
 
-Steps: run every trial with every closed-loop method; on the frames of the
-`obstacle` runs (the robot drives safely, so the frames cover the approach to
-each obstacle) score every method's fused scan against the ground truth and
-build each method's map; keep a few frames for the figures; write results.
+Steps: run every trial with every closed-loop method; during the `obstacle` runs
+(the robot drives safely, so the scans cover the approach to each obstacle) feed
+every method's own `FusionStream` the same sensor events and score each scan it
+releases against the ground truth at the scan's stamp, and build each method's map;
+run the scripted turning trials the same way; keep a few frames for the figures;
+write results. All of it in real sensor time (`scanfuse.sim.simulation`).
 """
 
 from __future__ import annotations
@@ -16,13 +18,17 @@ import yaml
 
 from scanfuse.evaluate.closed_loop import (
     CLOSED_LOOP_TIME_LIMIT,
+    TURNING_TRIALS,
     DriveLog,
     TrialOutcome,
     TrialSpec,
+    TurningSpec,
     drive,
     evaluation_world,
     odom_to_world,
     trial_specs,
+    turn,
+    turning_world,
 )
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
@@ -32,19 +38,19 @@ from scanfuse.evaluate.mapping import (
     rasterize_footprints,
     save_map,
 )
-from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodRunner
+from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
 from scanfuse.evaluate.metrics import ScanTally
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
 from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
     from pathlib import Path
 
     import numpy as np
     import numpy.typing as npt
 
     from scanfuse.config import FusionConfig
+    from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
     from scanfuse.sim.simulation import LidarFrame, Simulation
     from scanfuse.sim.worlds import World
@@ -66,12 +72,19 @@ class EvaluationSettings:
     noise: bool = True
     map_resolution: float = MAP_RESOLUTION
     mapped_trials: int = 3  # first trials whose frames are mapped per method
+    turning: tuple[str, ...] = tuple(TURNING_TRIALS)  # scripted turning trials
+    # Sensor timing (the LiDAR's rate is its profile's, odometry 50 Hz): see the report.
+    lidar: str = 'rplidar-a2'
+    depth_rate: float = 15.0  # Hz
+    depth_latency: float = 0.040  # seconds from exposure to delivery
+    lidar_chunks: int = 12  # ray casts per sweep
+    odometry_rate: float = 50.0  # Hz
 
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
         base = cls(
             trials=2,
-            closed_loop_methods=('lidar', 'obstacle'),
+            closed_loop_methods=('lidar', 'obstacle', 'obstacle-uncompensated'),
             resolution=(256, 144),
             time_limit=20.0,
             mapped_trials=3,
@@ -107,18 +120,33 @@ def base_config(sim: Simulation) -> FusionConfig:
     return fusion_config(sim.config)
 
 
-def make_simulation(trial: TrialSpec, settings: EvaluationSettings) -> Simulation:
+def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings) -> Simulation:
     """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen."""
     from scanfuse.sim.simulation import SimConfig, Simulation  # noqa: PLC0415
 
+    if isinstance(trial, TurningSpec):
+        world, seed = turning_world(), 0
+    else:
+        world, seed = evaluation_world(trial.world, trial.seed), trial.seed
     config = SimConfig(
-        world=trial.world,
-        seed=trial.seed,
+        world=world.name,
+        seed=seed,
+        lidar=settings.lidar,
         resolution=settings.resolution,
-        depth_rate=10.0,
+        depth_rate=settings.depth_rate,
+        depth_latency=settings.depth_latency,
+        lidar_chunks=settings.lidar_chunks,
+        state_rate=settings.odometry_rate,
         noise=settings.noise,
     )
-    return Simulation(config, evaluation_world(trial.world, trial.seed))
+    return Simulation(config, world)
+
+
+def robot_transforms(sim: Simulation) -> list[StampedTransform]:
+    """The /tf_static a recording of this robot holds, as the node would receive it."""
+    from scanfuse.sim.record import static_transforms  # noqa: PLC0415
+
+    return static_transforms(sim.robot)
 
 
 @dataclass
@@ -154,11 +182,15 @@ class Evaluation:
     """One evaluation run; `run()` does the work, `result()` packs it up."""
 
     def __init__(self, settings: EvaluationSettings, progress: Progress | None = None) -> None:
+        from scanfuse.errors import ConfigError  # noqa: PLC0415
+
         for name in (*settings.methods, *settings.closed_loop_methods):
             if name not in METHODS:
-                from scanfuse.errors import ConfigError  # noqa: PLC0415
-
                 msg = f'unknown method {name!r}; choose from {", ".join(METHODS)}'
+                raise ConfigError(msg)
+        for name in settings.turning:
+            if name not in TURNING_TRIALS:
+                msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
                 raise ConfigError(msg)
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
@@ -171,12 +203,20 @@ class Evaluation:
         self.collision_logs: dict[str, tuple[World, DriveLog, TrialOutcome, float]] = {}
         # Maps of the LiDAR-only robot's run, from its own scans and from the fused ones.
         self.crash_maps: dict[str, MapSet] = {}
+        # Per method: what its scoring streams did (scans, fused, compensated, ...).
+        self.stream_counts: dict[str, dict[str, int]] = {}
 
     def run(self) -> None:
-        jobs = [(t, m) for t in self.trials for m in self.settings.closed_loop_methods]
-        self.progress.start('closed-loop trials', len(jobs))
+        jobs: list[tuple[TrialSpec | TurningSpec, str]] = [
+            (t, m) for t in self.trials for m in self.settings.closed_loop_methods
+        ]
+        jobs += [(TURNING_TRIALS[name], '') for name in self.settings.turning]
+        self.progress.start('closed-loop and turning trials', len(jobs))
         for trial, method in jobs:
-            self._trial(trial, method)
+            if isinstance(trial, TurningSpec):
+                self._turning(trial)
+            else:
+                self._trial(trial, method)
             self.progress.advance()
         self.progress.finish()
 
@@ -184,87 +224,71 @@ class Evaluation:
         sim = make_simulation(trial, self.settings)
         try:
             base = base_config(sim)
-            runner = MethodRunner(METHODS[method], base, sim.camera)
+            transforms = robot_transforms(sim)
+            driver = MethodStream(method, base, sim.camera, transforms)
             scoring = method == 'obstacle' or (
                 'obstacle' not in self.settings.closed_loop_methods
                 and method == self.settings.closed_loop_methods[0]
             )
-            on_frame = self._scorer(trial, sim, base) if scoring else None
+            scorer = (
+                _Scorer(self, trial.label, trial.world, sim, base, transforms, mapped=True)
+                if scoring
+                else None
+            )
             keep = method == 'lidar' and trial.world in {'bookshelf', 'barricade'}
+            # The LiDAR-only robot's run, fused as well, for the maps of what it missed.
+            crash = MethodStream('obstacle', base, sim.camera, transforms) if keep else None
+            crash_scans: list[tuple[LidarFrame, Scan]] = []
+            observers = [*(scorer.streams if scorer else ()), *((crash,) if crash else ())]
 
-            def scan_of(scan: Scan, depth: npt.NDArray[np.uint16]) -> Scan:
-                return runner.scan(scan, depth, sim.camera)
+            def on_scan(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
+                if scorer is not None:
+                    scorer.add(stream, frame, scan)
+                if stream is crash:
+                    crash_scans.append((frame, scan))
 
             outcome, log = drive(
-                sim, trial, scan_of, method=method, keep_frames=keep, on_frame=on_frame
+                sim, trial, driver, observers=observers, on_scan=on_scan, keep_frames=keep
             )
+            if scorer is not None:
+                scorer.close()
             self.outcomes.append(outcome)
             if keep:
                 self.collision_logs[trial.label] = (sim.world, log, outcome, sim.robot.body_radius)
-                self.crash_maps[trial.label] = self._crash_maps(sim, base, log)
+                self.crash_maps[trial.label] = self._crash_maps(sim, base, log, crash_scans)
         finally:
             sim.close()
 
-    def _crash_maps(self, sim: Simulation, base: FusionConfig, log: DriveLog) -> MapSet:
-        """LiDAR-only and obstacle maps of the frames the LiDAR-only robot saw (true poses)."""
+    def _turning(self, spec: TurningSpec) -> None:
+        sim = make_simulation(spec, self.settings)
+        try:
+            base = base_config(sim)
+            scorer = _Scorer(
+                self, spec.label, spec.label, sim, base, robot_transforms(sim), mapped=False
+            )
+            turn(sim, spec, scorer.streams, scorer.add)
+            scorer.close()
+        finally:
+            sim.close()
+
+    def _crash_maps(
+        self,
+        sim: Simulation,
+        base: FusionConfig,
+        log: DriveLog,
+        fused: list[tuple[LidarFrame, Scan]],
+    ) -> MapSet:
+        """LiDAR-only and obstacle maps of the scans the LiDAR-only robot saw (true poses)."""
         slab = (base.min_obstacle_height, base.max_obstacle_height)
         maps = _map_set(sim.world, self.settings, slab)
-        fused = MethodRunner(METHODS['obstacle'], base, sim.camera)
         for record in log.frames:
             frame = record.lidar
-            pose = (frame.origin[0], frame.origin[1], frame.pose.yaw)
-            maps.grid('lidar').integrate(frame.scan, *pose)
-            scan = fused.scan(frame.scan, record.depth, sim.camera)
-            maps.grid('obstacle').integrate(scan, *pose)
-        return maps
-
-    def _scorer(
-        self, trial: TrialSpec, sim: Simulation, base: FusionConfig
-    ) -> Callable[[LidarFrame, npt.NDArray[np.uint16]], None]:
-        camera = sim.camera
-        runners = {
-            name: MethodRunner(METHODS[name], base, camera) for name in self.settings.methods
-        }
-        truths = SlotTruthBuilder(
-            sim.world.obstacles,
-            sim.lidar_profile.grid,
-            min_obstacle_height=base.min_obstacle_height,
-            max_obstacle_height=base.max_obstacle_height,
-            range_max=sim.lidar_profile.range_max,
-            camera=camera,
-            extrinsics=Extrinsics.from_config(base),
-        )
-        world_tallies = self.world_tallies.setdefault(
-            trial.world, {name: ScanTally() for name in self.settings.methods}
-        )
-        mapped = len(self.maps) < self.settings.mapped_trials
-        maps = (
-            self.maps.setdefault(
-                trial.label,
-                _map_set(
-                    sim.world, self.settings, (base.min_obstacle_height, base.max_obstacle_height)
-                ),
+            maps.grid('lidar').integrate(
+                frame.scan, frame.origin[0], frame.origin[1], frame.pose.yaw
             )
-            if mapped
-            else None
-        )
-        front = _obstacle_front(sim.world)
-
-        def on_frame(frame: LidarFrame, depth: npt.NDArray[np.uint16]) -> None:
-            truth = truths.build(frame)
-            scans = {
-                name: runner.scan(frame.scan, depth, camera) for name, runner in runners.items()
-            }
-            for name, scan in scans.items():
-                self.tallies[name].add(scan.ranges, truth)
-                world_tallies[name].add(scan.ranges, truth)
-                if maps is not None:
-                    maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
-            wanted = front is not None and trial.label not in self.snapshots
-            if front is not None and wanted and front - frame.pose.x <= FIGURE_DISTANCE:
-                self.snapshots[trial.label] = Snapshot(trial.label, frame, scans)
-
-        return on_frame
+        for frame, scan in fused:
+            maps.grid('obstacle').integrate(scan, frame.origin[0], frame.origin[1], frame.pose.yaw)
+        return maps
 
     def result(self, files: list[str]) -> EvaluationResult:
         methods: dict[str, MethodResult] = {}
@@ -284,12 +308,100 @@ class Evaluation:
                 },
                 maps=maps,
                 closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
+                stream=dict(self.stream_counts.get(name, {})),
             )
         settings = {
             key: list(value) if isinstance(value, tuple) else value
             for key, value in asdict(self.settings).items()
         }
         return EvaluationResult(settings, methods, list(self.outcomes), files)
+
+
+class _Scorer:
+    """Every scored method's stream in one run; scores each scan once all have released it.
+
+    A scan's truth is the exact truth at its stamp (`LidarFrame.truth`'s instant): every
+    method is scored on the same scans against the same truth.
+    """
+
+    def __init__(
+        self,
+        evaluation: Evaluation,
+        label: str,
+        group: str,
+        sim: Simulation,
+        base: FusionConfig,
+        transforms: list[StampedTransform],
+        *,
+        mapped: bool,
+    ) -> None:
+        settings = evaluation.settings
+        self.evaluation = evaluation
+        self.label = label
+        camera = sim.camera
+        self.streams = [MethodStream(name, base, camera, transforms) for name in settings.methods]
+        self._names = {stream: stream.name for stream in self.streams}
+        self._pending: dict[int, dict[str, Scan]] = {}
+        self.truths = SlotTruthBuilder(
+            sim.world.obstacles,
+            sim.lidar_profile.grid,
+            min_obstacle_height=base.min_obstacle_height,
+            max_obstacle_height=base.max_obstacle_height,
+            range_max=sim.lidar_profile.range_max,
+            camera=camera,
+            extrinsics=Extrinsics.from_config(base),
+        )
+        self.group_tallies = evaluation.world_tallies.setdefault(
+            group, {name: ScanTally() for name in settings.methods}
+        )
+        self.maps = (
+            evaluation.maps.setdefault(
+                label,
+                _map_set(sim.world, settings, (base.min_obstacle_height, base.max_obstacle_height)),
+            )
+            if mapped and len(evaluation.maps) < settings.mapped_trials
+            else None
+        )
+        self.front = _obstacle_front(sim.world)
+
+    def add(self, stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
+        name = self._names.get(stream)
+        if name is None:
+            return
+        scans = self._pending.setdefault(frame.stamp_ns, {})
+        scans[name] = scan
+        if len(scans) == len(self._names):
+            del self._pending[frame.stamp_ns]
+            self._score(frame, scans)
+
+    def _score(self, frame: LidarFrame, scans: dict[str, Scan]) -> None:
+        evaluation = self.evaluation
+        truth = self.truths.build(frame)
+        for name, scan in scans.items():
+            evaluation.tallies[name].add(scan.ranges, truth)
+            self.group_tallies[name].add(scan.ranges, truth)
+            if self.maps is not None:
+                self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
+        front = self.front
+        wanted = front is not None and self.label not in evaluation.snapshots
+        if front is not None and wanted and front - frame.pose.x <= FIGURE_DISTANCE:
+            evaluation.snapshots[self.label] = Snapshot(self.label, frame, scans)
+
+    def close(self) -> None:
+        """Add up what the streams did (every stream released every scan: none is lost)."""
+        for stream in self.streams:
+            counts = stream.counts
+            if counts is None:
+                continue
+            total = self.evaluation.stream_counts.setdefault(stream.name, {})
+            for key, value in (
+                ('scans', counts.scans),
+                ('fused', counts.fused),
+                ('compensated', counts.compensated),
+                ('deskewed', counts.deskewed),
+                ('passed', counts.passed_through),
+            ):
+                total[key] = total.get(key, 0) + value
 
 
 def _obstacle_front(world: World) -> float | None:
@@ -362,7 +474,8 @@ def run_evaluation(
     """Run the evaluation and write everything into `out`."""
     evaluation = Evaluation(settings, progress)
     evaluation.run()
-    reference = make_simulation(evaluation.trials[0], settings)
+    first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
+    reference = make_simulation(first, settings)
     try:
         config = base_config(reference)
     finally:

@@ -1,6 +1,6 @@
 """MuJoCo simulation of the paper's indoor worlds: robot, sensors, ground truth, bags."""
 
-from scanfuse.sim.drive import PATHS, FusedController, Lap, Rotate, Straight, scripted_path
+from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record, static_transforms
 from scanfuse.sim.robot import RobotSpec, WheelOdometry
@@ -35,6 +35,7 @@ __all__ = [
     'LIDARS',
     'PATHS',
     'WORLDS',
+    'Arc',
     'CameraProfile',
     'Contact',
     'Controller',

@@ -56,6 +56,7 @@ def run_simulate(
     snapshot: Path | None,
     console: Console,
     mounting: tuple[float, float, float] = (0.30, 0.45, 20.0),
+    depth_latency: float = 0.040,
 ) -> RecordSummary:
     """Record one run; `mounting` is (LiDAR height m, camera height m, camera pitch degrees)."""
     lidar_height, camera_height, camera_pitch = mounting
@@ -71,6 +72,7 @@ def run_simulate(
         camera=camera,
         resolution=parse_resolution(resolution),
         depth_rate=depth_rate,
+        depth_latency=depth_latency,
         noise=noise,
         depth_backend=parse_backend(depth_backend),
         robot=robot,

@@ -44,6 +44,17 @@ class Rotate:
 
 
 @dataclass
+class Arc:
+    """Drive an arc: constant speed and turn rate (radius speed / rate, to the left if rate > 0)."""
+
+    speed: float = 0.3
+    rate: float = 0.6
+
+    def __call__(self, _observation: Observation) -> tuple[float, float]:
+        return self.speed, self.rate
+
+
+@dataclass
 class Lap:
     """Drive a rectangle with left turns, leg by leg, measuring progress with odometry.
 
@@ -112,11 +123,17 @@ def _wrap(angle: float) -> float:
     return math.atan2(math.sin(angle), math.cos(angle))
 
 
-PATHS: dict[str, Callable[[], Controller]] = {'straight': Straight, 'rotate': Rotate, 'lap': Lap}
+PATHS: dict[str, Callable[[], Controller]] = {
+    'straight': Straight,
+    'rotate': Rotate,
+    'rotate-fast': lambda: Rotate(1.5),
+    'arc': Arc,
+    'lap': Lap,
+}
 
 
 def scripted_path(name: str) -> Controller:
-    """A fresh controller for the scripted path `name` (straight, rotate, lap)."""
+    """A fresh controller for the scripted path `name` (one of `PATHS`)."""
     factory = PATHS.get(name)
     if factory is None:
         msg = f'unknown path {name!r}; choose one of {", ".join(PATHS)}'

@@ -1,6 +1,10 @@
 """Recording a simulated run as a ROS 2 bag (rosbags Writer, MCAP storage, version 8).
 
-Topics (frames as REP-105; stamps are simulated time from EPOCH_NS):
+Topics (frames as REP-105; stamps are simulated time from EPOCH_NS). Header stamps are
+the sensors' (a scan's first beam, an image's exposure); the log time of a scan or an
+image is when the simulated driver delivered it (the end of the sweep; the exposure plus
+the camera's latency), as `ros2 bag record` would log it; odometry, TF and the true pose
+are logged at their stamps, 50 Hz:
 
 | topic | type | frame |
 | --- | --- | --- |
@@ -243,14 +247,14 @@ class BagSink:
     def on_lidar(self, frame: LidarFrame) -> None:
         if self.first_lidar is None:
             self.first_lidar = frame
-        self._write('/scan', frame.stamp_ns, scan_to_cdr(frame.scan))
-        self._write('/scan_truth', frame.stamp_ns, scan_to_cdr(frame.truth))
+        self._write('/scan', frame.arrival_ns, scan_to_cdr(frame.scan))
+        self._write('/scan_truth', frame.arrival_ns, scan_to_cdr(frame.truth))
 
     def on_depth(self, frame: DepthFrame) -> None:
         image = depth_to_cdr(frame.depth, frame_id=OPTICAL_FRAME, stamp_ns=frame.stamp_ns)
-        self._write('/camera/depth/image_raw', frame.stamp_ns, image)
+        self._write('/camera/depth/image_raw', frame.arrival_ns, image)
         info = camera_to_cdr(frame.camera, stamp_ns=frame.stamp_ns)
-        self._write('/camera/depth/camera_info', frame.stamp_ns, info)
+        self._write('/camera/depth/camera_info', frame.arrival_ns, info)
 
     def on_state(self, sample: StateSample) -> None:
         self.states.append(sample)

@@ -1,11 +1,37 @@
-"""The simulation: a world, the robot, its sensors, ground truth, and the driving loop."""
+"""The simulation: a world, the robot, its sensors, ground truth, and the driving loop.
+
+`Simulation.run` keeps real sensor time. Every sensor runs at its own rate and phase
+from the start of the run, and every event happens at the physics step (2 ms by
+default) nearest its nominal time, so a 30 Hz camera's stamps jitter by up to half a
+step as a real one's do:
+
+- **Depth camera** (`depth_rate`, default the profile's 30 Hz): the image is rendered at
+  its exposure, stamped with the exposure time, and delivered (handed to the sink and
+  the controller) `depth_latency` seconds later (default 40 ms).
+- **LiDAR** (the profile's rate, 10 Hz for the RPLIDAR): a sweep starts at its stamp;
+  beam i is measured at stamp + i * time_increment with time_increment = scan_time *
+  angle_increment / (2 pi) (scan_time / readings for a 360 degree LiDAR, as rplidar_ros
+  sets it; urg_node's value for a 270 degree one). Beams are cast in `lidar_chunks`
+  chunks per sweep, each at the physics step nearest its middle beam's time, so no beam
+  is more than half a chunk (plus half a step) off its own time. The scan is delivered
+  at the end of the sweep, stamp + scan_time.
+- **Odometry and state** (`state_rate`, 50 Hz): wheel odometry, the true pose and the
+  robot's contacts.
+
+A scan's ground truth (`LidarFrame.truth`) is the exact truth scan from the LiDAR's true
+pose at the scan's stamp (its first beam), the instant a de-skewed, motion-compensated
+scan describes; a raw sweep of a turning robot differs from it by its skew.
+"""
 
 from __future__ import annotations
 
+import functools
+import heapq
+import itertools
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Protocol
 
 import mujoco
@@ -71,6 +97,10 @@ class SimConfig:
     camera: str = 'd435'
     resolution: tuple[int, int] = (640, 480)
     depth_rate: float | None = None  # Hz; None: the camera profile's rate
+    depth_latency: float = 0.040  # seconds from exposure to delivery
+    depth_phase: float = 0.0  # seconds from the run's start to the first exposure
+    lidar_phase: float = 0.0  # seconds from the run's start to the first sweep
+    lidar_chunks: int = 12  # ray casts per LiDAR sweep
     noise: bool = True
     lidar_noise: LidarNoise = field(default_factory=LidarNoise)
     depth_noise: DepthNoise = field(default_factory=DepthNoise)
@@ -87,6 +117,17 @@ class SimConfig:
             raise SimError(msg)
         if not 0.0 < self.timestep <= 0.01:
             msg = f'timestep {self.timestep} s must be in (0, 0.01] for stable wheel contacts'
+            raise SimError(msg)
+        for name in ('depth_latency', 'depth_phase', 'lidar_phase'):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                msg = f'{name} {value} s must be in [0, 1] s'
+                raise SimError(msg)
+        if not 1 <= self.lidar_chunks <= 10000:
+            msg = f'lidar_chunks {self.lidar_chunks} must be in [1, 10000] ray casts per sweep'
+            raise SimError(msg)
+        if not 0.0 < self.state_rate <= 1000.0:
+            msg = f'state_rate {self.state_rate} Hz must be in (0, 1000]'
             raise SimError(msg)
 
 
@@ -118,20 +159,36 @@ def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> Fusion
 
 @dataclass(frozen=True)
 class LidarFrame:
-    """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose."""
+    """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose.
+
+    Truth, pose and origin are at the scan's stamp (its first beam); `delivered_ns` is
+    when the driver handed the scan over (the end of the sweep).
+    """
 
     stamp_ns: int
     scan: Scan
     truth: Scan
     pose: Pose2D  # base_link in the world
     origin: tuple[float, float, float]  # LiDAR origin in the world
+    delivered_ns: int | None = None  # None: the stamp (a scan cast all at once)
+
+    @property
+    def arrival_ns(self) -> int:
+        return self.stamp_ns if self.delivered_ns is None else self.delivered_ns
 
 
 @dataclass(frozen=True)
 class DepthFrame:
+    """A depth image stamped with its exposure time, delivered `delivered_ns`."""
+
     stamp_ns: int
     depth: npt.NDArray[np.uint16]
     camera: CameraModel
+    delivered_ns: int | None = None  # None: the stamp (no latency)
+
+    @property
+    def arrival_ns(self) -> int:
+        return self.stamp_ns if self.delivered_ns is None else self.delivered_ns
 
 
 @dataclass(frozen=True)
@@ -168,7 +225,8 @@ class Contact:
 
 @dataclass(frozen=True)
 class Observation:
-    """What a controller sees at each LiDAR scan; fuse `scan` and `depth` with a FusionPipeline."""
+    """What a controller sees when a LiDAR scan is delivered: the scan, the latest delivered
+    depth image (None before the first), and the odometry now."""
 
     time: float
     scan: Scan
@@ -210,6 +268,21 @@ class Trace:
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
         del stamp_ns  # every contact carries its own stamp
         self.contacts.extend(contacts)
+
+
+# Events at the same physics step happen in this order.
+_STATE, _EXPOSE, _SWEEP, _BEAMS, _DELIVER_DEPTH, _DELIVER_SCAN = range(6)
+
+
+@dataclass
+class _Sweep:
+    """A LiDAR sweep in progress: the pose at its stamp and the beams cast so far."""
+
+    stamp_ns: int
+    pose: Pose2D
+    origin: tuple[float, float, float]
+    heading: float
+    distances: npt.NDArray[np.float64]
 
 
 def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
@@ -295,9 +368,15 @@ class Simulation:
         self._robot_geoms = self.model.geom_group == ROBOT_GEOM_GROUP
         self._floor = self.model.geom('floor').id
         self._kinds = self.world.kinds()
-        self._lidar_fan = RayFan(
-            lidar_directions(self.lidar_profile), cutoff=self.lidar_profile.range_max + 1.0
-        )
+        directions = lidar_directions(self.lidar_profile)
+        cutoff = self.lidar_profile.range_max + 1.0
+        self._lidar_fan = RayFan(directions, cutoff=cutoff)
+        beams = np.array_split(np.arange(self.lidar_profile.count), config.lidar_chunks)
+        self._lidar_chunks = [
+            (RayFan(directions[chunk], cutoff=cutoff), chunk) for chunk in beams if chunk.size
+        ]
+        self._step = 0  # physics steps since time zero
+        self._step_ns = round(config.timestep * NANOSECONDS)
         rays, self._z_of_ray = optical_rays(self.camera)
         self._depth_fan = RayFan(
             rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
@@ -330,11 +409,21 @@ class Simulation:
 
     @property
     def time(self) -> float:
-        return float(self.data.time)
+        return self._step * self.config.timestep
 
     @property
     def stamp_ns(self) -> int:
-        return EPOCH_NS + round(float(self.data.time) * NANOSECONDS)
+        return EPOCH_NS + self._step * self._step_ns
+
+    @property
+    def lidar_time_increment(self) -> float:
+        """Seconds between two beams: the sweep turns 2 pi in scan_time (rplidar_ros, urg_node)."""
+        profile = self.lidar_profile
+        return abs(profile.angle_increment) / (2.0 * math.pi) / profile.rate
+
+    @property
+    def depth_rate(self) -> float:
+        return self.config.depth_rate or self.camera_profile.rate
 
     def geom_kind(self, geom_id: int) -> str:
         """The kind label of a geom ('floor', '' for the robot's own geoms)."""
@@ -380,6 +469,7 @@ class Simulation:
     # ------------------------------------------------------------ sensing
 
     def lidar_frame(self) -> LidarFrame:
+        """Every beam cast now, at one instant (time_increment 0); `run` sweeps instead."""
         origin, rotation = self.lidar_pose()
         distances, _ = self._lidar_fan.cast(self.model, self.data, origin, rotation)
         profile = self.lidar_profile
@@ -406,6 +496,43 @@ class Simulation:
             self.true_pose(),
             (float(origin[0]), float(origin[1]), float(origin[2])),
         )
+
+    def _start_sweep(self) -> _Sweep:
+        origin, rotation = self.lidar_pose()
+        return _Sweep(
+            self.stamp_ns,
+            self.true_pose(),
+            (float(origin[0]), float(origin[1]), float(origin[2])),
+            math.atan2(rotation[1, 0], rotation[0, 0]),
+            np.full(self.lidar_profile.count, np.nan),
+        )
+
+    def _cast_chunk(self, sweep: _Sweep, index: int) -> None:
+        fan, beams = self._lidar_chunks[index]
+        origin, rotation = self.lidar_pose()
+        distances, _ = fan.cast(self.model, self.data, origin, rotation)
+        sweep.distances[beams] = distances
+
+    def _finish_sweep(self, sweep: _Sweep) -> LidarFrame:
+        profile = self.lidar_profile
+        noise = self.config.lidar_noise if self.config.noise else None
+        ranges = lidar_ranges(sweep.distances, profile, noise, self._lidar_rng)
+        scan = Scan(
+            angle_min=profile.angle_min,
+            angle_max=profile.angle_max,
+            angle_increment=profile.angle_increment,
+            range_min=profile.range_min,
+            range_max=profile.range_max,
+            ranges=ranges,
+            time_increment=self.lidar_time_increment,
+            scan_time=1.0 / profile.rate,
+            frame_id=LASER_FRAME,
+            stamp_ns=sweep.stamp_ns,
+        )
+        x, y, _ = sweep.origin
+        # The truth is one instant's: the stamp's, with no sweep time.
+        truth = scan.with_ranges(self.truth.scan(x, y, sweep.heading), time_increment=0.0)
+        return LidarFrame(sweep.stamp_ns, scan, truth, sweep.pose, sweep.origin, self.stamp_ns)
 
     def true_depth(self) -> npt.NDArray[np.float64]:
         """Depth along the optical axis of every pixel, metres, NaN where nothing is hit."""
@@ -459,7 +586,10 @@ class Simulation:
         """Let the robot sink onto its wheels, then restart the clock and the odometry."""
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, nstep=round(SETTLE_TIME / self.config.timestep))
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
         self.data.time = 0.0
+        self._step = 0
         self.data.qvel[:] = 0.0
         self._update_odometry(0.0)
 
@@ -469,62 +599,119 @@ class Simulation:
         )
 
     def advance(self, until: float) -> None:
-        """Step the physics to time `until` (seconds), integrating odometry."""
-        steps = math.ceil((until - self.data.time) / self.config.timestep - 1e-6)
+        """Step the physics to time `until` (seconds, up to the next step), integrating odometry."""
+        self.advance_to_step(math.ceil(until / self.config.timestep - 1e-6))
+
+    def advance_to_step(self, step: int) -> None:
+        """Step the physics until `step` steps have passed since time zero."""
+        steps = step - self._step
         if steps > 0:
-            start = self.data.time
             mujoco.mj_step(self.model, self.data, nstep=steps)
-            self._update_odometry(self.data.time - start)
+            # mj_step leaves the body and camera poses of the state before its last
+            # integration: bring them to the new joint positions the odometry reads, so that
+            # every sensor, the truth and the odometry describe the same instant.
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_camlight(self.model, self.data)
+            self._step = step
+            self._update_odometry(steps * self.config.timestep)
 
     def run(
         self,
         duration: float,
-        controller: Controller,
+        controller: Controller | None,
         sink: Sink,
         progress: Callable[[float], None] | None = None,
+        *,
+        stop: Callable[[], bool] | None = None,
     ) -> None:
-        """Drive for `duration` seconds; the controller is asked for (v, omega) at every scan."""
-        if duration <= 0.0:
+        """Drive for `duration` seconds, every sensor at its own rate (module docstring).
+
+        The sink gets every event that happens within the duration, in time order: a
+        scan or image only once it is delivered. The controller, if any, is asked for
+        (v, omega) at every delivered scan; without one the sink may steer
+        (`set_command`). `stop` is asked after every event and ends the run when true.
+        """
+        if not duration > 0.0:
             msg = f'duration must be positive, got {duration} s'
             raise SimError(msg)
-        periods = {
-            'lidar': 1.0 / self.lidar_profile.rate,
-            'depth': 1.0 / (self.config.depth_rate or self.camera_profile.rate),
-            'state': 1.0 / self.config.state_rate,
-        }
-        due = dict.fromkeys(periods, self.time)
-        last_depth: DepthFrame | None = None
-        end = self.time + duration
-        while True:
-            now = min(due.values())
-            if now > end + 1e-9:
-                break
-            self.advance(now)
-            for name in ('state', 'depth', 'lidar'):
-                if due[name] > now + 1e-9:
-                    continue
-                due[name] += periods[name]
-                if name == 'state':
-                    sink.on_state(self.state())
-                    contacts = self.contacts()
-                    if contacts:
-                        sink.on_contacts(self.stamp_ns, contacts)
-                elif name == 'depth':
-                    last_depth = self.depth_frame()
-                    sink.on_depth(last_depth)
-                else:
-                    frame = self.lidar_frame()
-                    sink.on_lidar(frame)
-                    observation = Observation(
-                        self.time,
-                        frame.scan,
-                        None if last_depth is None else last_depth.depth,
-                        self.camera,
-                        self.odometry.pose,
-                    )
-                    self.set_command(*controller(observation))
+        dt = self.config.timestep
+        start = self._step
+        end = start + math.floor(duration / dt + 1e-6)
+        events: list[tuple[int, int, int, Callable[[], None]]] = []
+        order = itertools.count()
+
+        def at(step: int, priority: int, action: Callable[[], None]) -> None:
+            if step <= end:
+                heapq.heappush(events, (step, priority, next(order), action))
+
+        def step_of(seconds: float) -> int:
+            return start + round(seconds / dt)
+
+        def state(index: int) -> None:
+            sink.on_state(self.state())
+            contacts = self.contacts()
+            if contacts:
+                sink.on_contacts(self.stamp_ns, contacts)
             if progress is not None:
                 progress(self.time)
+            at(step_of((index + 1) / self.config.state_rate), _STATE, lambda: state(index + 1))
+
+        latest: list[DepthFrame] = []
+        latency = round(self.config.depth_latency / dt)
+
+        def expose(index: int) -> None:
+            frame = self.depth_frame()
+            delivered = replace(frame, delivered_ns=frame.stamp_ns + latency * self._step_ns)
+            at(self._step + latency, _DELIVER_DEPTH, lambda: deliver_depth(delivered))
+            schedule_exposure(index + 1)
+
+        def deliver_depth(frame: DepthFrame) -> None:
+            latest[:] = [frame]
+            sink.on_depth(frame)
+
+        def schedule_exposure(index: int) -> None:
+            step = step_of(self.config.depth_phase + index / self.depth_rate)
+            if step + latency <= end:  # an image delivered after the run is not taken
+                at(step, _EXPOSE, lambda: expose(index))
+
+        period = 1.0 / self.lidar_profile.rate
+        increment = self.lidar_time_increment
+        chunk_offsets = [
+            round(0.5 * (beams[0] + beams[-1]) * increment / dt) for _, beams in self._lidar_chunks
+        ]
+
+        def sweep(index: int) -> None:
+            current = self._start_sweep()
+            for chunk, offset in enumerate(chunk_offsets):
+                at(self._step + offset, _BEAMS, functools.partial(self._cast_chunk, current, chunk))
+            at(self._step + round(period / dt), _DELIVER_SCAN, lambda: deliver_scan(current))
+            schedule_sweep(index + 1)
+
+        def deliver_scan(current: _Sweep) -> None:
+            frame = self._finish_sweep(current)
+            sink.on_lidar(frame)
+            if controller is not None:
+                depth = latest[0].depth if latest else None
+                observation = Observation(
+                    self.time, frame.scan, depth, self.camera, self.odometry.pose
+                )
+                self.set_command(*controller(observation))
+
+        def schedule_sweep(index: int) -> None:
+            step = step_of(self.config.lidar_phase + index * period)
+            if step + round(period / dt) <= end:  # a sweep delivered after the run is not cast
+                at(step, _SWEEP, lambda: sweep(index))
+
+        at(start, _STATE, lambda: state(0))
+        schedule_exposure(0)
+        schedule_sweep(0)
+        while events:
+            step, _, _, action = heapq.heappop(events)
+            self.advance_to_step(step)
+            action()
+            if stop is not None and stop():
+                return
+        self.advance_to_step(end)
 
     def close(self) -> None:
         if self._renderer is not None:
