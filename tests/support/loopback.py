@@ -4,6 +4,7 @@
     python -m tests.support.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
     python -m tests.support.loopback set-param NAME VALUE --out RESULT.json
     python -m tests.support.loopback flood --seconds S [--done FILE]   malformed messages
+    python -m tests.support.loopback relay FROM TO      republish LaserScan bytes (baseline)
 
 Data topics are published best effort (like Gazebo and camera drivers), /tf_static
 transient local. `record` writes what it received to an MCAP bag whose log times
@@ -13,6 +14,7 @@ are the monotonic receive times (comparable across processes on one machine).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import rclpy
+import rclpy.executors
 import rclpy.utilities
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rosbags.highlevel import AnyReader
@@ -241,6 +244,21 @@ def flood(seconds: float, *, done: Path | None = None) -> int:
     return 0
 
 
+def relay(source: str, target: str) -> int:
+    """A do-nothing node: every LaserScan on `source` republished as is on `target`, with
+    the node's QoS (sensor data in, reliable out), to measure what DDS and rclpy cost."""
+    from scanfuse.ros.node import OUTPUT_QOS
+
+    node = rclpy.create_node('scanfuse_relay')
+    publisher = node.create_publisher(LaserScan, target, OUTPUT_QOS)
+    node.create_subscription(
+        LaserScan, source, publisher.publish, qos_profile_sensor_data, raw=True
+    )
+    with contextlib.suppress(KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        rclpy.spin(node)
+    return 0
+
+
 def _diagnostic_level(raw: bytes, store: Any) -> int:
     statuses = store.deserialize_cdr(raw, DIAGNOSTICS).status
     return max((int(status.level) for status in statuses), default=0)
@@ -378,6 +396,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     flood_cmd = commands.add_parser('flood')
     flood_cmd.add_argument('--seconds', type=float, required=True)
     flood_cmd.add_argument('--done', type=Path, default=None)
+    relay_cmd = commands.add_parser('relay')
+    relay_cmd.add_argument('source')
+    relay_cmd.add_argument('target')
     param_cmd = commands.add_parser('set-param')
     param_cmd.add_argument('name')
     param_cmd.add_argument('value')
@@ -391,6 +412,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return play(
                 args.bag, garbage_at=args.garbage_at, wait_for=args.wait_for, started=args.started
             )
+        if args.command == 'relay':
+            return relay(args.source, args.target)
         if args.command == 'flood':
             return flood(args.seconds, done=args.done)
         if args.command == 'record':

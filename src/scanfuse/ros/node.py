@@ -9,6 +9,11 @@ sensor-data QoS (best effort, keep last 5), which matches both best-effort
 (Gazebo, camera drivers) and reliable publishers; outputs are reliable, keep
 last 10, which slam_toolbox's, Nav2's and RViz's subscribers (reliable or best
 effort) all accept. Only rclpy API that Humble has is used.
+
+Named sources (`lidars`, `cameras`, `clouds`: string arrays; `NAME.field` parameters from
+the models of `scanfuse.sources`) are declared at start-up; every source beyond the first
+LiDAR and camera gets its own subscriptions (LaserScan, depth Image + CameraInfo,
+PointCloud2) and is fed to the stream under its name.
 """
 
 from __future__ import annotations
