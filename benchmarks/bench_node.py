@@ -173,7 +173,11 @@ def measure(pair_wait: float) -> dict[str, object]:
         rclpy.shutdown()
         for process in (node_process, relay_process):
             process.terminate()
-            process.wait(timeout=10)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()  # the relay has no SIGTERM handler of its own
+                process.wait(timeout=10)
     return {
         'latencies': latencies,
         'cpu': cpu,
