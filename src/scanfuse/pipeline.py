@@ -218,6 +218,12 @@ class FusionPipeline:
             timings=StageTimings(converted - start, resampled - converted, merged - resampled),
         )
 
+    def prepare(self, camera: CameraModel, extrinsics: Extrinsics, grid: AngleGrid) -> None:
+        """Build the obstacle method's tables for this camera, mounting and LiDAR grid now
+        (the node calls it when CameraInfo arrives), not on the first fused scan."""
+        if self.config.method is Method.OBSTACLE:
+            self._projector(camera, extrinsics, grid)
+
     def _plan(self, source: AngleGrid, target: AngleGrid) -> Plan:
         plan = self._plans.get(None, (source, target))
         if plan is None:

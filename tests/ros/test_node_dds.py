@@ -16,6 +16,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -278,3 +279,92 @@ def test_parameter_changes_at_run_time(tmp_path, loopback_factory):
     assert after, 'the replay ended before the parameter was set'
     assert before[-1] == pytest.approx(BOX, abs=TOLERANCE)
     assert all(value == pytest.approx(WALL, abs=TOLERANCE) for value in after)
+
+
+def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
+    from tests.support.synthetic import REAR_TOPIC, two_lidar_messages, write_bag
+
+    scene = Scene(duration=2.0)
+    back_wall = 1.5
+    bag = write_bag(tmp_path / 'in.mcap', two_lidar_messages(scene, back_wall=back_wall))
+    sources = {
+        'lidars': '[front, rear]',
+        'front.topic': '/scan',
+        'front.z': 0.3,
+        'rear.topic': REAR_TOPIC,
+        'rear.z': 0.3,
+        'rear.yaw': math.pi,
+    }
+    loop = loopback_factory(use_tf=False, pair_wait=0.1, **SCENE_PARAMS, **sources)
+    loop.record('/scan_fused', '/diagnostics')
+    assert loop.play(bag, '--wait-for', REAR_TOPIC).wait(timeout=60) == 0, loop.log('player')
+    received = loop.received(linger=1.5)
+    half = scene.angle_increment / 2
+    checked = 0
+    for _, raw in received['/scan_fused']:
+        scan = scan_from_cdr(raw)
+        if scan.stamp_ns < scene.start_ns + 0.15e9:
+            continue  # before the first CameraInfo and rear scan
+        b = scan.angle_min + scan.angle_increment * np.arange(len(scan.ranges))
+        # Only the rear LiDAR (yaw pi) sees behind the side: the back wall at x = -1.5 m,
+        # r = 1.5 / |cos| of a bearing within half a slot of the slot's (see test_node_sources).
+        behind = (np.abs(b) >= 0.6 * math.pi) & (np.abs(b) <= 0.74 * math.pi)
+        near = back_wall / np.abs(np.cos(np.abs(b[behind]) + half))
+        far = back_wall / np.abs(np.cos(np.abs(b[behind]) - half))
+        assert np.all((scan.ranges[behind] >= near - 1e-3) & (scan.ranges[behind] <= far + 1e-3))
+        assert ahead(scan) == pytest.approx(BOX, abs=TOLERANCE)
+        checked += 1
+    assert checked >= 0.8 * (len(scene.scan_stamps()) - 2), loop.log('node')
+    store = typestore()
+    last = store.deserialize_cdr(
+        received['/diagnostics'][-1][1], 'diagnostic_msgs/msg/DiagnosticArray'
+    )
+    values = {kv.key: kv.value for kv in last.status[0].values}
+    used = int(values['source rear'].split(',')[0].removeprefix('used '))
+    assert used >= checked
+
+
+def _rss_kib(pid: int, field: str) -> int:
+    for line in Path(f'/proc/{pid}/status').read_text(encoding='utf-8').splitlines():
+        if line.startswith(f'{field}:'):
+            return int(line.split()[1])
+    raise AssertionError(field)
+
+
+# What a malformed flood may add to the node's resident memory at its peak (VmHWM) over
+# what it holds once up: the obstacle tables of one camera (~9 MB), a few buffered frames
+# and allocator slack; a leak of even 1 KiB per message would pass it within the flood.
+SOAK_RSS_BOUND_MIB = 64
+
+
+def test_soak_malformed_flood_then_valid_traffic(tmp_path, loopback_factory):
+    scene = Scene(duration=2.0)
+    bag = write_scene_bag(tmp_path / 'in.mcap', scene)
+    loop = loopback_factory(use_tf=False, **SCENE_PARAMS)
+    loop.record('/scan_fused', '/diagnostics')
+    baseline = _rss_kib(loop.node.pid, 'VmRSS')
+    flood = loop.loopback('flood', 'flood', '--seconds', '8')
+    assert flood.wait(timeout=60) == 0, loop.log('flood')
+    assert loop.node.poll() is None, loop.log('node')
+    assert loop.play(bag).wait(timeout=60) == 0, loop.log('player')
+    received = loop.received(linger=1.5)
+    assert loop.node.poll() is None, loop.log('node')
+    peak = _rss_kib(loop.node.pid, 'VmHWM')
+    sent = int(loop.log('flood').rsplit('flood: ', 1)[1].split()[0])
+    assert sent > 10_000
+    fused = [
+        scan_from_cdr(raw)
+        for _, raw in received['/scan_fused']
+        if scan_from_cdr(raw).stamp_ns >= scene.start_ns + 0.15e9
+    ]
+    # Output resumes: the valid replay's scans come back fused with the box ahead.
+    assert len([s for s in fused if ahead(s) == pytest.approx(BOX, abs=TOLERANCE)]) >= 10
+    assert (peak - baseline) / 1024 <= SOAK_RSS_BOUND_MIB, (baseline, peak)
+    store = typestore()
+    last = store.deserialize_cdr(
+        received['/diagnostics'][-1][1], 'diagnostic_msgs/msg/DiagnosticArray'
+    )
+    values = {kv.key: kv.value for kv in last.status[0].values}
+    assert int(values['malformed depth image']) >= 1
+    assert int(values['malformed scan']) >= 1
+    assert int(values['malformed camera info']) >= 1

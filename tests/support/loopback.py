@@ -3,6 +3,8 @@
     python -m tests.support.loopback play BAG [--garbage-at S]   replay a bag at real time
     python -m tests.support.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
     python -m tests.support.loopback set-param NAME VALUE --out RESULT.json
+    python -m tests.support.loopback flood --seconds S [--done FILE]   malformed messages
+    python -m tests.support.loopback relay FROM TO      republish LaserScan bytes (baseline)
 
 Data topics are published best effort (like Gazebo and camera drivers), /tf_static
 transient local. `record` writes what it received to an MCAP bag whose log times
@@ -12,6 +14,7 @@ are the monotonic receive times (comparable across processes on one machine).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -19,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import rclpy
+import rclpy.executors
 import rclpy.utilities
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rosbags.highlevel import AnyReader
@@ -144,6 +148,114 @@ def play(
     # Let best-effort samples leave before the participant goes away.
     time.sleep(0.2)
     node.destroy_node()
+    return 0
+
+
+def flood_messages(seed: int = 0) -> dict[str, list[bytes]]:
+    """Malformed messages per topic of the scene, the kinds drivers and attackers send:
+    random bytes, truncated CDR, and well-formed CDR with values that make no sense."""
+    import math
+
+    import numpy as np
+
+    from scanfuse.ros.messages import camera_to_cdr, scan_to_cdr
+    from scanfuse.scan import Scan
+    from tests.support.synthetic import Scene
+
+    rng = np.random.default_rng(seed)
+    store = typestore()
+    scene = Scene()
+    scan = Scan(
+        angle_min=-1.0,
+        angle_max=1.0,
+        angle_increment=0.01,
+        range_min=0.05,
+        range_max=10.0,
+        ranges=np.ones(201, dtype=np.float32),
+        frame_id='laser',
+    )
+    good_scan = scan_to_cdr(scan, store)
+    nan_grid: Any = store.deserialize_cdr(good_scan, LASER_SCAN)
+    nan_grid.angle_min = math.nan
+    tiny_increment: Any = store.deserialize_cdr(good_scan, LASER_SCAN)
+    tiny_increment.angle_increment = 1e-9
+    good_info = camera_to_cdr(scene.camera, stamp_ns=1, store=store)
+    nan_info: Any = store.deserialize_cdr(good_info, CAMERA_INFO)
+    nan_info.d = np.array([math.nan, 0.0, 0.0, 0.0, 0.0])
+    huge: Any = store.deserialize_cdr(
+        depth_to_cdr(np.zeros((4, 4), dtype=np.uint16), frame_id='cam', stamp_ns=1, store=store),
+        IMAGE,
+    )
+    huge.width = huge.height = 100_000  # claims 20 GB of pixels, carries 32 bytes
+
+    def noise() -> bytes:
+        return rng.integers(0, 256, int(rng.integers(0, 400)), dtype=np.uint8).tobytes()
+
+    return {
+        '/scan': [
+            noise(),
+            good_scan[: len(good_scan) // 2],
+            bytes(store.serialize_cdr(nan_grid, LASER_SCAN)),
+            bytes(store.serialize_cdr(tiny_increment, LASER_SCAN)),
+        ],
+        '/camera/depth/image_raw': [
+            noise(),
+            *(bad for _, bad in garbage_messages()),
+            bytes(store.serialize_cdr(huge, IMAGE)),
+        ],
+        '/camera/depth/camera_info': [
+            noise(),
+            good_info[: len(good_info) // 3],
+            bytes(store.serialize_cdr(nan_info, CAMERA_INFO)),
+        ],
+    }
+
+
+def flood(seconds: float, *, done: Path | None = None) -> int:
+    """Publish `flood_messages` round after round for `seconds` (0 when someone listened)."""
+    types = _ros_types()
+    kinds = {'/scan': LASER_SCAN, '/camera/depth/image_raw': IMAGE}
+    kinds['/camera/depth/camera_info'] = CAMERA_INFO
+    node = rclpy.create_node('scanfuse_flooder')
+    publishers = {
+        topic: node.create_publisher(types[kind], topic, qos_profile_sensor_data)
+        for topic, kind in kinds.items()
+    }
+    if not _spin_until(
+        node,
+        lambda: all(p.get_subscription_count() > 0 for p in publishers.values()),
+        DISCOVERY_TIMEOUT_S,
+    ):
+        print('flood: the node did not subscribe in time', file=sys.stderr)
+        return 2
+    bad = flood_messages()
+    sent = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        for topic, messages in bad.items():
+            for raw in messages:
+                publishers[topic].publish(raw)
+                sent += 1
+        time.sleep(0.001)  # pacing, a few thousand messages a second
+    print(f'flood: {sent} malformed messages', file=sys.stderr)
+    node.destroy_node()
+    if done is not None:
+        done.write_text(str(sent), encoding='utf-8')
+    return 0
+
+
+def relay(source: str, target: str) -> int:
+    """A do-nothing node: every LaserScan on `source` republished as is on `target`, with
+    the node's QoS (sensor data in, reliable out), to measure what DDS and rclpy cost."""
+    from scanfuse.ros.node import OUTPUT_QOS
+
+    node = rclpy.create_node('scanfuse_relay')
+    publisher = node.create_publisher(LaserScan, target, OUTPUT_QOS)
+    node.create_subscription(
+        LaserScan, source, publisher.publish, qos_profile_sensor_data, raw=True
+    )
+    with contextlib.suppress(KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        rclpy.spin(node)
     return 0
 
 
@@ -281,6 +393,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     record_cmd.add_argument('--stop', type=Path, default=None)
     record_cmd.add_argument('--expect-publisher', action='store_true')
     record_cmd.add_argument('--drain-until-level', type=int, default=None)
+    flood_cmd = commands.add_parser('flood')
+    flood_cmd.add_argument('--seconds', type=float, required=True)
+    flood_cmd.add_argument('--done', type=Path, default=None)
+    relay_cmd = commands.add_parser('relay')
+    relay_cmd.add_argument('source')
+    relay_cmd.add_argument('target')
     param_cmd = commands.add_parser('set-param')
     param_cmd.add_argument('name')
     param_cmd.add_argument('value')
@@ -294,6 +412,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return play(
                 args.bag, garbage_at=args.garbage_at, wait_for=args.wait_for, started=args.started
             )
+        if args.command == 'relay':
+            return relay(args.source, args.target)
+        if args.command == 'flood':
+            return flood(args.seconds, done=args.done)
         if args.command == 'record':
             return record(
                 args.out,

@@ -231,3 +231,45 @@ def _write_ros1(path: Path, messages: list[tuple[str, str, int, bytes]]) -> Path
         for topic, msgtype, log_time, raw in messages:
             writer.write(connections[topic], log_time, bytes(ros2.cdr_to_ros1(raw, msgtype)))
     return path
+
+
+REAR_TOPIC = '/rear/scan'
+REAR_FRAME = 'rear_laser'
+
+
+def rear_scan_messages(
+    scene: Scene, *, back_wall: float = 1.5, lead: float = 0.02
+) -> list[tuple[str, str, int, bytes]]:
+    """A second LiDAR at the base origin (height `scene.lidar_height`) turned to face back
+    (yaw pi), seeing a back wall at x = -`back_wall` in the base frame: in its own frame the
+    wall is at x' = +back_wall, so r = back_wall / cos(theta'). Stamped `lead` seconds
+    before each front scan (it arrives first); same grid as the front LiDAR."""
+    store = typestore()
+    delay = round(scene.log_delay * NANOSECONDS)
+    cos = np.cos(scene.lidar_angles())
+    with np.errstate(divide='ignore'):
+        ranges = np.where(cos > 0.0, back_wall / np.maximum(cos, 1e-12), np.inf)
+    ranges[ranges > scene.lidar_range_max] = np.inf
+    messages = []
+    for stamp in scene.scan_stamps():
+        rear_stamp = stamp - round(lead * NANOSECONDS)
+        scan = Scan(
+            angle_min=scene.angle_min,
+            angle_max=scene.angle_min + scene.angle_increment * (scene.readings - 1),
+            angle_increment=scene.angle_increment,
+            range_min=0.05,
+            range_max=scene.lidar_range_max,
+            ranges=ranges.astype(np.float32),
+            scan_time=1.0 / scene.scan_hz,
+            frame_id=REAR_FRAME,
+            stamp_ns=rear_stamp,
+        )
+        messages.append((REAR_TOPIC, LASER_SCAN, rear_stamp + delay, scan_to_cdr(scan, store)))
+    return messages
+
+
+def two_lidar_messages(scene: Scene, **rear: float) -> list[tuple[str, str, int, bytes]]:
+    """The scene's messages and a rear LiDAR's (`rear_scan_messages`), in log-time order."""
+    messages = scene_messages(scene) + rear_scan_messages(scene, **rear)
+    messages.sort(key=lambda item: item[2])
+    return messages

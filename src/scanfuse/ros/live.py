@@ -17,10 +17,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanfuse.config import Method
 from scanfuse.errors import MessageError, ScanfuseError
+from scanfuse.pipeline import grids_match
 from scanfuse.ros.messages import (
     camera_from_cdr,
     check_depth_matches_camera,
+    cloud_from_cdr,
     depth_from_cdr,
     odometry_from_cdr,
     scan_from_cdr,
@@ -35,7 +38,7 @@ if TYPE_CHECKING:
 
     from scanfuse.config import FusionConfig
     from scanfuse.ros.messages import RawMessage
-    from scanfuse.scan import Scan
+    from scanfuse.scan import AngleGrid, Scan
 
 logger = logging.getLogger(__name__)
 
@@ -63,6 +66,7 @@ class State(str, Enum):
     NO_EXTRINSICS = 'pass-through (extrinsics refused)'
     TOO_SLOW = 'processing too slow'
     MEMORY_DROPPED = 'obstacle memory dropped'
+    SOURCE_MISSING = 'a named source contributes nothing'
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,9 @@ class _Window:
     empty_depth: int = 0  # fused scans whose depth scan held no reading at all
     memory_drops: int = 0
     malformed_depth: int = 0
+    # Per named source: output scans it was used in / passed over in (missing, no mounting).
+    source_used: dict[str, int] = field(default_factory=dict)
+    source_missed: dict[str, int] = field(default_factory=dict)
 
 
 Problem = tuple[Level, State, str]
@@ -137,6 +144,10 @@ class LiveFusion:
         self._window = _Window()
         self._window_start: float | None = None
         self._memory_drops_reported = 0
+        self._source_keys: dict[str, bytes | None] = {}  # CameraInfo of other cameras
+        self._camera_info_error: str | None = None  # the last CameraInfo was unusable
+        self._grid: tuple[AngleGrid, str] | None = None  # the primary LiDAR's grid and frame
+        self._sources_reported: tuple[dict[str, int], dict[str, int]] = ({}, {})
 
     # ------------------------------------------------------------ configuration
 
@@ -190,45 +201,102 @@ class LiveFusion:
 
     # ------------------------------------------------------------ inputs
 
-    def on_scan(self, raw: RawMessage, now: float) -> list[Output]:
+    def _extra(self, source: str | None) -> bool:
+        """A named source other than the primary LiDAR and camera."""
+        return source is not None and source in self.stream.extras
+
+    def on_scan(self, raw: RawMessage, now: float, source: str | None = None) -> list[Output]:
         self._note_start(now)
+        extra = self._extra(source)
         try:
             scan = scan_from_cdr(raw, self.store)
         except MessageError as err:
-            self.stream.note_malformed('scan', err)
+            self.stream.note_malformed(f'scan ({source})' if extra else 'scan', err)
             return []
+        if extra:
+            return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now), source=source))
         self._last_scan = now
         self._window.scans += 1
         self._window.stamps.append(scan.stamp_ns)
+        if self._grid is None or not (
+            grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id
+        ):
+            self._grid = (scan.grid, scan.frame_id)
+            self._prepare_tables()
         return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now)))
 
-    def on_depth(self, raw: RawMessage, now: float) -> list[Output]:
+    def on_depth(self, raw: RawMessage, now: float, source: str | None = None) -> list[Output]:
         self._note_start(now)
+        extra = self._extra(source)
         try:
+            # A view of `raw`: the pixels reach the kernel without a copy.
             image = depth_from_cdr(raw, self.store)
-            if self.stream.camera is not None:
+            if not extra and self.stream.camera is not None:
                 check_depth_matches_camera(image, self.stream.camera)
         except MessageError as err:
+            if extra:
+                self.stream.note_malformed(f'depth image ({source})', err)
+                return self._outputs(self.stream.tick(_ns(now)))
             self.stream.note_malformed('depth image', err)
             self._window.malformed_depth += 1
             return self._outputs(self.stream.tick(_ns(now)))
         return self._outputs(
-            self.stream.add_depth(image.stamp_ns, image.depth, _ns(now), image.frame_id)
+            self.stream.add_depth(
+                image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source
+            )
         )
 
-    def on_camera_info(self, raw: RawMessage, now: float) -> None:
+    def on_camera_info(self, raw: RawMessage, now: float, source: str | None = None) -> None:
         self._note_start(now)
+        extra = self._extra(source)
         # Drivers send the same CameraInfo with every frame: only its stamp changes.
         key = _without_stamp(raw)
-        if key is not None and key == self._camera_key:
+        last = self._source_keys.get(str(source)) if extra else self._camera_key
+        if key is not None and key == last:
             return
         try:
             camera = camera_from_cdr(raw, self.store)
         except MessageError as err:
-            self.stream.note_malformed('camera info', err)
+            self.stream.note_malformed(f'camera info ({source})' if extra else 'camera info', err)
+            if not extra:
+                self._camera_info_error = str(err)
+            return
+        if extra:
+            self._source_keys[str(source)] = key
+            self.stream.add_camera_info(camera, source=source)
             return
         self._camera_key = key
+        self._camera_info_error = None
         self.stream.add_camera_info(camera)
+        self._prepare_tables()
+
+    def on_cloud(self, raw: RawMessage, now: float, source: str) -> list[Output]:
+        """A PointCloud2 of the named cloud source `source`."""
+        self._note_start(now)
+        try:
+            cloud = cloud_from_cdr(raw, self.store)
+            return self._outputs(
+                self.stream.add_cloud(
+                    cloud.stamp_ns, cloud.points, _ns(now), cloud.frame_id, source
+                )
+            )
+        except ScanfuseError as err:
+            self.stream.note_malformed(f'cloud ({source})', err)
+            return self._outputs(self.stream.tick(_ns(now)))
+
+    def _prepare_tables(self) -> None:
+        """Build the obstacle method's per-camera tables now, when CameraInfo (or a new LiDAR
+        grid) arrives, so the first paired scan does not pay for them (issue 12)."""
+        camera, grid = self.stream.camera, self._grid
+        if camera is None or grid is None or self.config.method is not Method.OBSTACLE:
+            return
+        choice = self.stream.extrinsics_for(grid[1], camera.frame_id)
+        if choice.extrinsics is None:
+            return
+        try:
+            self.stream.pipeline.prepare(camera, choice.extrinsics, grid[0])
+        except ScanfuseError:
+            return  # the first fused scan reports it, as it would without this
 
     def on_tf(self, raw: RawMessage, *, static: bool) -> None:
         try:
@@ -352,6 +420,7 @@ class LiveFusion:
         }
         window.memory_drops = counts.memory_dropped - self._memory_drops_reported
         self._memory_drops_reported = counts.memory_dropped
+        values.update(self._source_values(window))
         level, state, message = self._classify(now, camera_age, window)
         values['state'] = state.value
         return Health(level, state, message, values)
@@ -365,6 +434,7 @@ class LiveFusion:
             self._silence_problem(camera_age, window),
             self._usable_problem(window),
             self._memory_problem(window),
+            self._sources_problem(window),
             self._speed_problem(window),
         )
         return next((p for p in problems if p is not None), (Level.OK, State.FUSING, 'fusing'))
@@ -380,8 +450,53 @@ class LiveFusion:
     def _camera_info_problem(self) -> Problem | None:
         if self.stream.camera is not None:
             return None
-        message = f'no CameraInfo on {self.config.camera_info_topic}: LiDAR passed through'
+        topic = self.config.camera_info_topic
+        if self._camera_info_error is not None:
+            message = (
+                f'the camera contributes nothing: the CameraInfo on {topic} is unusable '
+                f'({self._camera_info_error}); LiDAR passed through'
+            )
+            return Level.WARN, State.CAMERA_UNUSABLE, message
+        message = f'no CameraInfo on {topic}: LiDAR passed through'
         return Level.WARN, State.NO_CAMERA_INFO, message
+
+    def _source_values(self, window: _Window) -> dict[str, str]:
+        """Per named source: output scans it was used in, missing from, without mounting;
+        the window's share is kept for `_sources_problem`."""
+        extras = self.stream.extras
+        counts = extras.counts
+        used_before, missed_before = self._sources_reported
+        values = {}
+        for name in extras.names:
+            used = counts.used.get(name, 0)
+            missing = counts.missing.get(name, 0)
+            no_mounting = counts.no_mounting.get(name, 0)
+            window.source_used[name] = used - used_before.get(name, 0)
+            window.source_missed[name] = missing + no_mounting - missed_before.get(name, 0)
+            values[f'source {name}'] = f'used {used}, missing {missing}, no mounting {no_mounting}'
+        self._sources_reported = (
+            {name: counts.used.get(name, 0) for name in extras.names},
+            {
+                name: counts.missing.get(name, 0) + counts.no_mounting.get(name, 0)
+                for name in extras.names
+            },
+        )
+        return values
+
+    def _sources_problem(self, window: _Window) -> Problem | None:
+        silent = sorted(
+            name
+            for name, missed in window.source_missed.items()
+            if missed and not window.source_used.get(name)
+        )
+        if not silent:
+            return None
+        message = (
+            f'named sources {", ".join(silent)} contributed to no scan of the last period '
+            '(nothing within their max_time_offset, or TF cannot place their frame): '
+            'fusing what is there'
+        )
+        return Level.WARN, State.SOURCE_MISSING, message
 
     def _extrinsics_problem(self, window: _Window) -> Problem | None:
         if not window.passed.get(Passed.NO_EXTRINSICS):

@@ -9,6 +9,11 @@ sensor-data QoS (best effort, keep last 5), which matches both best-effort
 (Gazebo, camera drivers) and reliable publishers; outputs are reliable, keep
 last 10, which slam_toolbox's, Nav2's and RViz's subscribers (reliable or best
 effort) all accept. Only rclpy API that Humble has is used.
+
+Named sources (`lidars`, `cameras`, `clouds`: string arrays; `NAME.field` parameters from
+the models of `scanfuse.sources`) are declared at start-up; every source beyond the first
+LiDAR and camera gets its own subscriptions (LaserScan, depth Image + CameraInfo,
+PointCloud2) and is fed to the stream under its name.
 """
 
 from __future__ import annotations
@@ -28,9 +33,14 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
-from rclpy.exceptions import NameValidationException, ParameterException
+from rclpy.exceptions import (
+    NameValidationException,
+    ParameterException,
+    ParameterUninitializedException,
+)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.parameter import Parameter
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -39,7 +49,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 from rclpy.utilities import ok, remove_ros_args
-from sensor_msgs.msg import CameraInfo, Image, LaserScan
+from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
 from scanfuse.errors import ScanfuseError
@@ -59,7 +69,10 @@ from scanfuse.ros.params import (
     check_change,
     config_from_ros,
     settings_from_ros,
+    source_list_spec,
+    source_param_specs,
 )
+from scanfuse.sources import KINDS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -92,6 +105,7 @@ _ROS_TYPES = {
     Kind.INTEGER: ParameterType.PARAMETER_INTEGER,
     Kind.DOUBLE: ParameterType.PARAMETER_DOUBLE,
     Kind.STRING: ParameterType.PARAMETER_STRING,
+    Kind.STRING_ARRAY: ParameterType.PARAMETER_STRING_ARRAY,
 }
 
 
@@ -161,6 +175,7 @@ class ScanfuseNode:
         self.specs = {spec.name: spec for spec in all_param_specs(defaults, settings)}
         for spec in self.specs.values():
             self.node.declare_parameter(spec.name, spec.default, descriptor(spec))
+        self.specs.update(self._declare_sources(defaults))
         values = self.parameter_values()
         config = config_from_ros(values)
         settings = settings_from_ros(values)
@@ -181,6 +196,7 @@ class ScanfuseNode:
         self.node.create_subscription(
             CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
         )
+        self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
         self.fused_pub = self.node.create_publisher(LaserScan, config.fused_topic, OUTPUT_QOS)
         self.depth_pub = (
@@ -214,6 +230,91 @@ class ScanfuseNode:
 
     def parameter_values(self) -> dict[str, Any]:
         return {name: self.node.get_parameter(name).value for name in self.specs}
+
+    # ------------------------------------------------------------ named sources
+
+    def _declare_sources(self, defaults: FusionConfig) -> dict[str, ParamSpec]:
+        """`lidars`, `cameras`, `clouds` and, for every name listed, its section's fields."""
+        specs: dict[str, ParamSpec] = {}
+        seen: set[str] = set()
+        for kind in KINDS:
+            known = {source.name: source for source in getattr(defaults.sources, kind)}
+            spec = source_list_spec(kind, list(known))
+            specs[kind] = spec
+            names = self._declare_list(spec)
+            for name in names:
+                if name in seen:
+                    continue  # a name listed twice: the config names the repetition
+                seen.add(name)
+                for field in source_param_specs(kind, name, known.get(name)):
+                    self.node.declare_parameter(field.name, field.default, descriptor(field))
+                    specs[field.name] = field
+        return specs
+
+    def _declare_list(self, spec: ParamSpec) -> list[str]:
+        """A string-array parameter; rclpy cannot infer the type of an empty default."""
+        if spec.default:
+            self.node.declare_parameter(spec.name, list(spec.default), descriptor(spec))
+        else:
+            untyped = descriptor(spec)
+            untyped.type = ParameterType.PARAMETER_NOT_SET
+            self.node.declare_parameter(spec.name, Parameter.Type.STRING_ARRAY, untyped)
+        try:
+            value = self.node.get_parameter(spec.name).value
+        except ParameterUninitializedException:
+            self.node.set_parameters([Parameter(spec.name, Parameter.Type.STRING_ARRAY, [])])
+            value = []
+        return [str(name) for name in value]
+
+    def _subscribe_sources(self, config: FusionConfig, qos: Any) -> None:
+        """Every named source but the primary LiDAR and camera, fed with its name."""
+        sources = config.sources
+        for lidar in sources.lidars[1:]:
+            self.node.create_subscription(
+                LaserScan, lidar.topic, self._source_callback('scan', lidar.name), qos, raw=True
+            )
+        for camera in sources.cameras[1:]:
+            self.node.create_subscription(
+                Image,
+                camera.depth_topic,
+                self._source_callback('depth image', camera.name),
+                qos,
+                raw=True,
+            )
+            self.node.create_subscription(
+                CameraInfo,
+                camera.camera_info_topic,
+                self._source_callback('camera info', camera.name),
+                qos,
+                raw=True,
+            )
+        for cloud in sources.clouds:
+            self.node.create_subscription(
+                PointCloud2, cloud.topic, self._source_callback('cloud', cloud.name), qos, raw=True
+            )
+
+    def _source_callback(self, kind: str, name: str) -> Any:
+        live = self.live
+        handlers = {
+            'scan': live.on_scan,
+            'depth image': live.on_depth,
+            'cloud': live.on_cloud,
+        }
+
+        def on_message(raw: bytes) -> None:
+            if kind == 'camera info':
+                self._guard(
+                    f'camera info ({name})',
+                    lambda: live.on_camera_info(raw, time.monotonic(), source=name),
+                )
+                return
+            handler = handlers[kind]
+            self._publish(
+                self._guard(f'{kind} ({name})', lambda: handler(raw, time.monotonic(), source=name))
+            )
+            self._arm_deadline()
+
+        return on_message
 
     # ------------------------------------------------------------ TF
 

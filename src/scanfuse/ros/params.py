@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
-from scanfuse.sources import KINDS
+from scanfuse.sources import KINDS, CameraSource, CloudSource, LidarSource
 
 if TYPE_CHECKING:
     from pydantic.fields import FieldInfo
@@ -66,6 +66,7 @@ class Kind(str, Enum):
     INTEGER = 'integer'
     DOUBLE = 'double'
     STRING = 'string'
+    STRING_ARRAY = 'string array'
 
 
 @dataclass(frozen=True)
@@ -281,12 +282,83 @@ def all_param_specs(
     return [*_model_param_specs(defaults), *_model_param_specs(settings or NodeSettings())]
 
 
+# ---------------------------------------------------------------- named sources
+
+SOURCE_MODELS: dict[str, type[BaseModel]] = {
+    'lidars': LidarSource,
+    'cameras': CameraSource,
+    'clouds': CloudSource,
+}
+# A source's fields that name topics: subscriptions are made at start-up.
+SOURCE_TOPIC_FIELDS = frozenset({'topic', 'depth_topic', 'camera_info_topic'})
+_LIST_DESCRIPTIONS = {
+    'lidars': 'names of the LiDAR sources (the first triggers every output scan), each with '
+    'a section NAME.topic, NAME.x, ...; empty: scan_topic alone',
+    'cameras': 'names of the depth camera sources, each with a section NAME.depth_topic, '
+    'NAME.camera_info_topic, ...; empty: depth_topic alone',
+    'clouds': 'names of the PointCloud2 sources, each with a section NAME.topic, ...',
+}
+
+
+def _annotation_kind(annotation: Any) -> Kind:
+    """The ROS type of a source field: `float | None` is a double that may stay unset."""
+    if annotation is bool:
+        return Kind.BOOL
+    if annotation is int:
+        return Kind.INTEGER
+    if annotation is str:
+        return Kind.STRING
+    return Kind.DOUBLE
+
+
+def source_list_spec(kind: str, names: list[str]) -> ParamSpec:
+    """The `lidars` / `cameras` / `clouds` parameter (a string array)."""
+    return ParamSpec(kind, Kind.STRING_ARRAY, names, _LIST_DESCRIPTIONS[kind], start_up_only=True)
+
+
+def source_param_specs(kind: str, name: str, section: BaseModel | None) -> list[ParamSpec]:
+    """`NAME.field` for every field of a source's model (`scanfuse.sources`).
+
+    Defaults are the section's values when the parameter file has one, else the Field's;
+    a required field (a topic) defaults to '' and `config_from_ros` leaves it out, so the
+    config says it is missing. An optional field (`min_height`) defaults to unset (None).
+    """
+    specs = []
+    for field, info in SOURCE_MODELS[kind].model_fields.items():
+        if field == 'name':
+            continue
+        if section is not None:
+            value = getattr(section, field)
+        else:
+            value = '' if info.is_required() else info.default
+        specs.append(
+            ParamSpec(
+                f'{name}.{field}',
+                _annotation_kind(info.annotation),
+                value,
+                info.description or field,
+                start_up_only=field in SOURCE_TOPIC_FIELDS,
+                bounds=field_bounds(info),
+            )
+        )
+    return specs
+
+
+def _start_up_only(name: str) -> bool:
+    if name in START_UP_ONLY or name in KINDS:
+        return True
+    return '.' in name and name.split('.', 1)[1] in SOURCE_TOPIC_FIELDS
+
+
 def config_from_ros(values: dict[str, Any]) -> FusionConfig:
     """A validated `FusionConfig` from ROS parameter values (ConfigError names what is wrong)."""
     fusion = {
-        name: value
+        name: list(value) if name in KINDS else value
         for name, value in values.items()
-        if name in FusionConfig.model_fields or name in KINDS or '.' in name
+        if name in FusionConfig.model_fields
+        or name in KINDS
+        # An unset optional field (None) or an unset topic ('') is left to its model.
+        or ('.' in name and value is not None and value != '')
     }
     if fusion.get('scan_row') == SCAN_ROW_CENTRE:
         fusion['scan_row'] = None
@@ -311,7 +383,7 @@ def settings_from_ros(values: dict[str, Any]) -> NodeSettings:
 def check_change(current: dict[str, Any], changes: dict[str, Any]) -> str | None:
     """Why `changes` cannot be applied to a running node, or None when they can."""
     fixed = sorted(
-        name for name in changes if name in START_UP_ONLY and changes[name] != current[name]
+        name for name in changes if _start_up_only(name) and changes[name] != current.get(name)
     )
     if fixed:
         return (
