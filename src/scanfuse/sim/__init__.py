@@ -27,10 +27,11 @@ from scanfuse.sim.simulation import (
 )
 from scanfuse.sim.snapshot import save_snapshot
 from scanfuse.sim.truth import TruthScanner
-from scanfuse.sim.worlds import KINDS, WORLDS, Obstacle, Pose2D, World, make_world
+from scanfuse.sim.worlds import DROP_KINDS, KINDS, WORLDS, Drop, Obstacle, Pose2D, World, make_world
 
 __all__ = [
     'CAMERAS',
+    'DROP_KINDS',
     'KINDS',
     'LIDARS',
     'PATHS',
@@ -42,6 +43,7 @@ __all__ = [
     'DepthBackend',
     'DepthFrame',
     'DepthNoise',
+    'Drop',
     'FusedController',
     'Lap',
     'LidarFrame',

@@ -18,6 +18,10 @@ step as a real one's do:
 - **Odometry and state** (`state_rate`, 50 Hz): wheel odometry, the true pose and the
   robot's contacts.
 
+Falls: at every state sample the base's height is compared with where it settled; once it
+is more than `FALL_DEPTH` lower, the base has left the floor plane (a ledge, a stair, a
+hole) and `Simulation.fell_ns` holds the stamp of that first sample.
+
 A scan's ground truth (`LidarFrame.truth`) is the exact truth scan from the LiDAR's true
 pose at the scan's stamp (its first beam), the instant a de-skewed, motion-compensated
 scan describes; a raw sweep of a turning robot differs from it by its skew.
@@ -70,6 +74,10 @@ NANOSECONDS = 1_000_000_000
 # ROS tools treat as "latest"; the run is still fully deterministic.
 EPOCH_NS = 1_700_000_000 * NANOSECONDS
 SETTLE_TIME = 0.3
+# The base has left the floor plane once it is this much below where it settled, metres:
+# far above what the wheels sink into the floor or rock on the casters (millimetres), far
+# below any step a robot can fall down (a stair rises 0.15-0.20 m).
+FALL_DEPTH = 0.05
 _DEFAULTS = FusionConfig()
 # camera_link (x forward, z up) -> optical frame (z forward, x right, y down), REP-103.
 LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -366,8 +374,11 @@ class Simulation:
         self._wheels = [self.model.joint(f'{side}_wheel').qposadr[0] for side in ('left', 'right')]
         self._geom_names = [self.model.geom(i).name for i in range(self.model.ngeom)]
         self._robot_geoms = self.model.geom_group == ROBOT_GEOM_GROUP
-        self._floor = self.model.geom('floor').id
         self._kinds = self.world.kinds()
+        self._floor = np.zeros(self.model.ngeom, dtype=bool)
+        for name, kind in self._kinds.items():
+            if kind == 'floor':
+                self._floor[self.model.geom(name).id] = True
         directions = lidar_directions(self.lidar_profile)
         cutoff = self.lidar_profile.range_max + 1.0
         self._lidar_fan = RayFan(directions, cutoff=cutoff)
@@ -388,7 +399,10 @@ class Simulation:
             min_obstacle_height=config.min_obstacle_height,
             max_obstacle_height=config.max_obstacle_height,
             range_max=self.lidar_profile.range_max,
+            drops=self.world.drops,
         )
+        self.fell_ns: int | None = None  # stamp of the state sample that found the base fallen
+        self._rest_z = 0.0
         lidar_seed, depth_seed = np.random.SeedSequence(config.seed).spawn(2)
         self._lidar_rng = np.random.default_rng(lidar_seed)
         self._depth_rng = np.random.default_rng(depth_seed)
@@ -427,7 +441,7 @@ class Simulation:
 
     def geom_kind(self, geom_id: int) -> str:
         """The kind label of a geom ('floor', '' for the robot's own geoms)."""
-        return self._kinds.get(self._geom_names[geom_id], 'floor' if geom_id == self._floor else '')
+        return self._kinds.get(self._geom_names[geom_id], '')
 
     def base_pose(self) -> tuple[Matrix, Matrix]:
         """Position and rotation matrix of base_link in the world."""
@@ -555,7 +569,7 @@ class Simulation:
             contact = self.data.contact[index]
             pair = (int(contact.geom1), int(contact.geom2))
             robot = [g for g in pair if self._robot_geoms[g]]
-            other = [g for g in pair if not self._robot_geoms[g] and g != self._floor]
+            other = [g for g in pair if not self._robot_geoms[g] and not self._floor[g]]
             if robot and other:
                 found.append(
                     Contact(
@@ -567,6 +581,16 @@ class Simulation:
                     )
                 )
         return found
+
+    def base_drop(self) -> float:
+        """How far the base is below where it settled on the floor, metres."""
+        return self._rest_z - float(self.data.xpos[self._body][2])
+
+    def check_fall(self) -> bool:
+        """Whether the base has left the floor plane (now or before); records the first time."""
+        if self.fell_ns is None and self.base_drop() > FALL_DEPTH:
+            self.fell_ns = self.stamp_ns
+        return self.fell_ns is not None
 
     def state(self) -> StateSample:
         position = self.data.xpos[self._body]
@@ -592,6 +616,7 @@ class Simulation:
         self._step = 0
         self.data.qvel[:] = 0.0
         self._update_odometry(0.0)
+        self._rest_z = float(self.data.xpos[self._body][2])
 
     def _update_odometry(self, dt: float) -> None:
         self.odometry.update(
@@ -648,6 +673,7 @@ class Simulation:
             return start + round(seconds / dt)
 
         def state(index: int) -> None:
+            self.check_fall()
             sink.on_state(self.state())
             contacts = self.contacts()
             if contacts:

@@ -15,6 +15,10 @@ exactly: where the interval's bounding rays cross the edge, at an edge end
 the interval. No sub-sampling of the angle is involved. Circles are polygons
 inscribed to within 0.2 mm (`worlds.MAX_SAGITTA`).
 
+A drop-off (`worlds.Drop`, floor missing over a rectangle) is an obstacle whatever the
+slab: its footprint joins the obstacles', so each slot's range to the drop's nearest
+edge is the range the robot must stop short of.
+
 Ranges beyond the LiDAR's range_max are +Inf; nearer ones, even below range_min,
 are reported as they are (the truth does not share the sensor's blind zone).
 """
@@ -30,7 +34,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from scanfuse.scan import AngleGrid
-    from scanfuse.sim.worlds import Obstacle
+    from scanfuse.sim.worlds import Drop, Obstacle
 
     Matrix = npt.NDArray[np.float64]
 
@@ -48,14 +52,16 @@ class TruthScanner:
         min_obstacle_height: float,
         max_obstacle_height: float,
         range_max: float,
+        drops: tuple[Drop, ...] = (),
     ) -> None:
         inside = [
-            obstacle
+            obstacle.footprint
             for obstacle in obstacles
             if obstacle.overlaps_slab(min_obstacle_height, max_obstacle_height)
         ]
-        starts = [obstacle.footprint for obstacle in inside]
-        ends = [np.roll(obstacle.footprint, -1, axis=0) for obstacle in inside]
+        inside += [drop.footprint for drop in drops]
+        starts = inside
+        ends = [np.roll(footprint, -1, axis=0) for footprint in inside]
         self.starts = np.concatenate(starts) if starts else np.zeros((0, 2))
         self.ends = np.concatenate(ends) if ends else np.zeros((0, 2))
         self.grid = grid

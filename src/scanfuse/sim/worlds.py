@@ -6,10 +6,18 @@ a height span [z_min, z_max] above the floor (z = 0), and carries a `kind` label
 so that the evaluation can split its metrics by obstacle type. The MJCF geoms are
 built from the same numbers, so the ground truth and the simulated sensors see
 one geometry.
+
+Drop-off worlds (`ledge`, `stairs`, `hole`) have no floor plane at z = 0: the floor is
+solid blocks with their tops at z = 0 everywhere but over each `Drop` (an axis-aligned
+rectangle where the floor is missing), and a plane named `floor` lies at the bottom of
+the deepest drop. The robot really falls there. The truth scan holds each drop's
+rectangle as an obstacle footprint (`TruthScanner`): its nearest edge is where the
+robot must stop.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -38,6 +46,7 @@ KINDS = (
     'low_box',
     'cable_tray',
 )
+DROP_KINDS = ('ledge', 'stairs', 'hole')
 # A circle's footprint polygon may lie inside the true circle by at most this
 # much (the sagitta of one edge), metres: far below the sensors' 1 mm resolution.
 MAX_SAGITTA = 2e-4
@@ -77,6 +86,54 @@ class Obstacle:
 
 
 @dataclass(frozen=True)
+class Drop:
+    """A rectangle of the floor that is missing: x_min..x_max by y_min..y_max (world, metres).
+
+    `depth` is how far below z = 0 the bottom lies. A staircase (`steps` > 1) descends
+    along +x in `steps` equal rises, each tread `(x_max - x_min) / steps` long; its last
+    tread is the bottom.
+    """
+
+    name: str
+    kind: str
+    rectangle: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
+    depth: float
+    steps: int = 1
+
+    def __post_init__(self) -> None:
+        x_min, x_max, y_min, y_max = self.rectangle
+        if not (x_max > x_min and y_max > y_min):
+            msg = f'drop {self.name!r} needs x_min < x_max and y_min < y_max, got {self.rectangle}'
+            raise SimError(msg)
+        if not 0.0 < self.depth <= 5.0:
+            msg = f'drop {self.name!r} depth {self.depth} m must be in (0, 5] m'
+            raise SimError(msg)
+        if self.steps < 1:
+            msg = f'drop {self.name!r} needs at least one step, got {self.steps}'
+            raise SimError(msg)
+
+    @property
+    def footprint(self) -> Polygon:
+        """Counter-clockwise corners of the missing floor."""
+        x_min, x_max, y_min, y_max = self.rectangle
+        return np.array([[x_min, y_min], [x_max, y_min], [x_max, y_max], [x_min, y_max]])
+
+    def contains(self, x: float, y: float) -> bool:
+        x_min, x_max, y_min, y_max = self.rectangle
+        return x_min < x < x_max and y_min < y < y_max
+
+    def treads(self) -> list[tuple[float, float, float]]:
+        """(x_min, x_max, top z) of every tread above the bottom, top step first."""
+        x_min, x_max, _, _ = self.rectangle
+        run = (x_max - x_min) / self.steps
+        rise = self.depth / self.steps
+        return [
+            (x_min + index * run, x_min + (index + 1) * run, -(index + 1) * rise)
+            for index in range(self.steps - 1)
+        ]
+
+
+@dataclass(frozen=True)
 class Pose2D:
     """A planar pose: position (metres) and heading (radians, counter-clockwise from +x)."""
 
@@ -95,26 +152,83 @@ class World:
     start: Pose2D
     bounds: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max of the room inside
     assets: tuple[str, ...] = ()
+    drops: tuple[Drop, ...] = ()
 
     def kind_of(self, geom_name: str) -> str:
         """The kind label of an obstacle geom ('floor' for the floor, '' for robot parts)."""
-        for obstacle in self.obstacles:
-            if obstacle.name == geom_name:
-                return obstacle.kind
-        return 'floor' if geom_name == 'floor' else ''
+        return self.kinds().get(geom_name, '')
 
     def kinds(self) -> dict[str, str]:
-        """Geom name -> kind, for every obstacle."""
-        return {obstacle.name: obstacle.kind for obstacle in self.obstacles}
+        """Geom name -> kind, for every obstacle and every piece of floor ('floor')."""
+        kinds = {name: 'floor' for name, _ in self._floor_pieces()}
+        kinds.update({obstacle.name: obstacle.kind for obstacle in self.obstacles})
+        return kinds
+
+    @property
+    def floor_depth(self) -> float:
+        """Depth of the lowest floor below z = 0 (0 without drops)."""
+        return max((drop.depth for drop in self.drops), default=0.0)
 
     def worldbody_mjcf(self) -> str:
         """The floor and every obstacle geom, to be placed in `<worldbody>`."""
+        pieces = [geom for _, geom in self._floor_pieces()]
+        return '\n'.join([*pieces, *(obstacle.mjcf for obstacle in self.obstacles)])
+
+    def _floor_pieces(self) -> list[tuple[str, str]]:
+        """(geom name, MJCF) of the floor: one plane, or blocks around the drops and a plane
+        at the bottom of the deepest."""
         extent = 2.0 + max(abs(value) for value in self.bounds)
-        floor = (
-            f'<geom name="floor" type="plane" size="{extent:.3f} {extent:.3f} 0.1" '
-            'rgba="0.8 0.8 0.8 1" friction="1 0.005 0.0001"/>'
+        rgba = 'rgba="0.8 0.8 0.8 1" friction="1 0.005 0.0001"'
+        bottom = -self.floor_depth
+        plane = (
+            'floor',
+            f'<geom name="floor" type="plane" pos="0 0 {bottom:.6g}" '
+            f'size="{extent:.3f} {extent:.3f} 0.1" {rgba}/>',
         )
-        return '\n'.join([floor, *(obstacle.mjcf for obstacle in self.obstacles)])
+        if not self.drops:
+            return [plane]
+        pieces = [plane]
+        blocks = _floor_blocks([d.rectangle for d in self.drops], extent)
+        for index, (x0, x1, y0, y1) in enumerate(blocks):
+            pieces.append(_block(f'floor_{index}', (x0, x1, y0, y1), (bottom, 0.0), rgba))
+        for drop in self.drops:
+            _, _, y0, y1 = drop.rectangle
+            for index, (x0, x1, top) in enumerate(drop.treads()):
+                name = f'{drop.name}_tread_{index}'
+                pieces.append(_block(name, (x0, x1, y0, y1), (bottom, top), rgba))
+        return pieces
+
+
+def _block(name: str, area: tuple[float, float, float, float], z: tuple[float, float], rgba: str) -> tuple[str, str]:
+    x0, x1, y0, y1 = area
+    geom = (
+        f'<geom name="{name}" type="box" pos="{_fmt((x0 + x1) / 2, (y0 + y1) / 2, (z[0] + z[1]) / 2)}" '
+        f'size="{_fmt((x1 - x0) / 2, (y1 - y0) / 2, (z[1] - z[0]) / 2)}" {rgba}/>'
+    )
+    return name, geom
+
+
+def _floor_blocks(
+    holes: list[tuple[float, float, float, float]], extent: float
+) -> list[tuple[float, float, float, float]]:
+    """Rectangles covering [-extent, extent]^2 except the holes: the cells of the grid the
+    holes' sides make, free ones merged along x within each band of y."""
+    xs = sorted({-extent, extent, *(v for h in holes for v in h[:2])})
+    ys = sorted({-extent, extent, *(v for h in holes for v in h[2:])})
+    blocks = []
+    for y0, y1 in itertools.pairwise(ys):
+        run: list[float] = []
+        for x0, x1 in itertools.pairwise(xs):
+            cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+            free = not any(h[0] < cx < h[1] and h[2] < cy < h[3] for h in holes)
+            if free:
+                run = [run[0] if run else x0, x1]
+            elif run:
+                blocks.append((run[0], run[1], y0, y1))
+                run = []
+        if run:
+            blocks.append((run[0], run[1], y0, y1))
+    return blocks
 
 
 # ---------------------------------------------------------------- shapes
@@ -203,11 +317,16 @@ def prism(
 def room_walls(
     bounds: tuple[float, float, float, float],
     door: tuple[float, float] | None = None,
+    *,
+    bottom: float = 0.0,
 ) -> list[Obstacle]:
-    """Four walls whose inner faces are `bounds`; `door` = (x centre, width) cuts the +y wall."""
+    """Four walls whose inner faces are `bounds`; `door` = (x centre, width) cuts the +y wall.
+
+    `bottom` (z, metres) is where they start: below zero down to a drop's bottom.
+    """
     x_min, x_max, y_min, y_max = bounds
     t = WALL_THICKNESS / 2
-    z = (0.0, WALL_HEIGHT)
+    z = (bottom, WALL_HEIGHT)
     rgba = '0.9 0.9 0.85 1'
     walls = [
         box(
@@ -451,16 +570,74 @@ def clutter_world(seed: int = 0) -> World:
     return World('clutter', seed, tuple(obstacles), start, LARGE_ROOM, tuple(assets))
 
 
+# ---------------------------------------------------------------- drop-offs
+
+DROP_ROOM = (-1.5, 4.5, -2.0, 2.0)
+# Where the drop worlds' robot starts: 1 m south of the room's axis, facing +x, so that the
+# straight line to a goal on the walkway past the ledge crosses the ledge 0.5 m deep.
+DROP_START = Pose2D(0.0, -1.0, 0.0)
+
+
+def _drop_world(name: str, seed: int, drops: tuple[Drop, ...], start: Pose2D) -> World:
+    bottom = -max(drop.depth for drop in drops)
+    walls = room_walls(DROP_ROOM, bottom=bottom)
+    return World(name, seed, tuple(walls), start, DROP_ROOM, drops=drops)
+
+
+def ledge_world(
+    seed: int = 0, *, edge: float = 2.0, walkway: float = 0.5, depth: float = 0.4
+) -> World:
+    """A loading dock: the floor ends at x = `edge` (a `depth` m drop to the yard) for every
+    y below `walkway`; north of it a walkway runs on to the east wall."""
+    x_max, y_min = DROP_ROOM[1], DROP_ROOM[2]
+    dock = Drop('ledge', 'ledge', (edge, x_max, y_min, walkway), depth)
+    return _drop_world('ledge', seed, (dock,), DROP_START)
+
+
+def stairs_world(
+    seed: int = 0,
+    *,
+    edge: float = 1.6,
+    width: float = 1.2,
+    steps: int = 4,
+    rise: float = 0.17,
+    run: float = 0.3,
+) -> World:
+    """A stairwell straight ahead: `steps` rises of `rise` m going down along +x from
+    x = `edge`, each tread `run` m long, the last one the bottom landing; floor all round."""
+    half = width / 2
+    well = Drop('stairs', 'stairs', (edge, edge + steps * run, -half, half), steps * rise, steps)
+    return _drop_world('stairs', seed, (well,), ROBOT_AT_ORIGIN)
+
+
+def hole_world(
+    seed: int = 0,
+    *,
+    near: float = 1.5,
+    length: float = 0.8,
+    width: float = 1.0,
+    depth: float = 0.5,
+) -> World:
+    """An open floor hatch straight ahead: `length` by `width` m, its near side at x = `near`."""
+    half = width / 2
+    hatch = Drop('hole', 'hole', (near, near + length, -half, half), depth)
+    return _drop_world('hole', seed, (hatch,), ROBOT_AT_ORIGIN)
+
+
 WORLDS: dict[str, Callable[[int], World]] = {
     'room': room_world,
     'bookshelf': bookshelf_world,
     'barricade': barricade_world,
     'clutter': clutter_world,
+    'ledge': ledge_world,
+    'stairs': stairs_world,
+    'hole': hole_world,
 }
 
 
 def make_world(name: str, seed: int = 0) -> World:
-    """The world called `name` (room, bookshelf, barricade, clutter) generated with `seed`."""
+    """The world called `name` (room, bookshelf, barricade, clutter, ledge, stairs, hole)
+    generated with `seed`."""
     builder = WORLDS.get(name)
     if builder is None:
         msg = f'unknown world {name!r}; choose one of {", ".join(WORLDS)}'
