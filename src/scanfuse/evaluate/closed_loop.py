@@ -5,7 +5,8 @@ scan the method gives it. It marks every return on a grid in the odometry
 frame, at the odometry pose of the scan's stamp (as a costmap looks the scan up in
 TF), plans with A* on that grid inflated by its radius, follows the path, and
 a stop/slow zone on the current scan guards its front. Whether it collides is
-decided by MuJoCo's contacts, whether it arrived by its true pose.
+decided by MuJoCo's contacts, whether it fell by its base leaving the floor plane
+(`Simulation.check_fall`), whether it arrived by its true pose.
 
 The simulator runs in real sensor time (`Simulation.run`) and `StreamFeed` hands every
 event to each method's `FusionStream` as the node would receive it: odometry at 50 Hz,
@@ -76,7 +77,17 @@ class TrialSpec:
 
 # Goals behind the paper's two obstacles: straight through the bookshelf's boards,
 # and past the barricade where its top leaves room and its base does not.
-FIXED_GOALS = {'bookshelf': (2.8, 0.0), 'barricade': (2.5, 0.6), 'room': (2.0, 1.5)}
+# In the drop worlds the straight line from the start to the goal crosses the drop (0.5 m
+# into the ledge's yard; through the middle of the stairwell and of the hole), and the
+# floor around it leads there: the walkway north of the ledge, 0.9-1.4 m beside the others.
+FIXED_GOALS = {
+    'bookshelf': (2.8, 0.0),
+    'barricade': (2.5, 0.6),
+    'room': (2.0, 1.5),
+    'ledge': (4.0, 0.95),
+    'stairs': (3.4, 0.0),
+    'hole': (3.2, 0.0),
+}
 SHELF_DISTANCE = 2.0
 ROOM_BEHIND_SHELF = 1.3  # metres from the shelf's front to the wall behind it
 
@@ -315,6 +326,8 @@ class TrialOutcome:
     path_length: float  # true distance driven, metres
     duration: float  # simulated seconds
     planned_length: float  # length of the last plan, metres
+    fell: bool = False  # the base left the floor plane (a drop-off)
+    fall_time: float = float('nan')  # simulated seconds at the first fallen state sample
 
 
 @dataclass
@@ -375,6 +388,7 @@ class StreamFeed:
 
 
 AFTER_CONTACT = 3.0  # seconds the run goes on after the first contact (the wheels slip)
+AFTER_FALL = 1.0  # seconds the run goes on after a fall (the robot comes to rest below)
 
 
 def drive(
@@ -416,6 +430,8 @@ def drive(
     def stop() -> bool:
         if navigator.done:
             return True
+        if sim.fell_ns is not None and sim.stamp_ns >= sim.fell_ns + round(AFTER_FALL * 1e9):
+            return True
         return bool(log.contacts) and sim.stamp_ns >= log.contacts[0].stamp_ns + round(
             AFTER_CONTACT * 1e9
         )
@@ -436,11 +452,15 @@ def drive(
         first_contact_time=(
             (first_contact.stamp_ns - log_start_ns(sim)) / 1e9 if first_contact else float('nan')
         ),
-        reached=distance <= GOAL_REACHED,
+        reached=distance <= GOAL_REACHED and sim.fell_ns is None,
         final_distance=distance,
         path_length=travelled,
         duration=sim.time,
         planned_length=navigator.planned_length(),
+        fell=sim.fell_ns is not None,
+        fall_time=(
+            (sim.fell_ns - log_start_ns(sim)) / 1e9 if sim.fell_ns is not None else float('nan')
+        ),
     )
     return outcome, log
 

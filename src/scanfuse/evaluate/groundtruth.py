@@ -2,7 +2,9 @@
 
 Built from the world's true obstacle geometry with the simulator's exact
 `TruthScanner`, one per obstacle, so that each slot also knows which obstacle
-(and so which kind) is nearest in it.
+(and so which kind) is nearest in it. A drop-off (`worlds.Drop`) is one more
+obstacle, of its own kind (ledge, stairs, hole), at floor level and below the
+LiDAR's plane: the plane never sees it.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ if TYPE_CHECKING:
     from scanfuse.camera import CameraModel
     from scanfuse.scan import AngleGrid
     from scanfuse.sim.simulation import LidarFrame
-    from scanfuse.sim.worlds import Obstacle
+    from scanfuse.sim.worlds import Drop, Obstacle
     from scanfuse.transforms import Extrinsics
 
 # Recall counts low obstacles the camera sees within this distance (the issue's 3 m).
@@ -41,18 +43,24 @@ class SlotTruthBuilder:
         camera: CameraModel,
         extrinsics: Extrinsics,
         view_range: float = VIEW_RANGE,
+        drops: tuple[Drop, ...] = (),
     ) -> None:
         self.grid = grid
         lidar_height = extrinsics.base_to_laser.translation[2]
         in_slab = [
             o for o in obstacles if o.overlaps_slab(min_obstacle_height, max_obstacle_height)
         ]
-        self._kinds = np.array([o.kind for o in in_slab] + [''], dtype=np.str_)
+        self._kinds = np.array(
+            [o.kind for o in in_slab] + [d.kind for d in drops] + [''], dtype=np.str_
+        )
+        # A drop's edge is at floor level: the camera must see the floor there.
         self._tops = np.array(
-            [min(o.z_max, max_obstacle_height) for o in in_slab] + [0.0], dtype=np.float64
+            [min(o.z_max, max_obstacle_height) for o in in_slab] + [0.0] * len(drops) + [0.0],
+            dtype=np.float64,
         )
         self._crosses_plane = np.array(
-            [o.z_min <= lidar_height <= o.z_max for o in in_slab], dtype=bool
+            [o.z_min <= lidar_height <= o.z_max for o in in_slab] + [False] * len(drops),
+            dtype=bool,
         )
         self._scanners = [
             TruthScanner(
@@ -63,6 +71,17 @@ class SlotTruthBuilder:
                 range_max=range_max,
             )
             for obstacle in in_slab
+        ]
+        self._scanners += [
+            TruthScanner(
+                (),
+                grid,
+                min_obstacle_height=min_obstacle_height,
+                max_obstacle_height=max_obstacle_height,
+                range_max=range_max,
+                drops=(drop,),
+            )
+            for drop in drops
         ]
         self.camera = camera
         self.view_range = view_range

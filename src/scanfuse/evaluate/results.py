@@ -31,16 +31,18 @@ class ClosedLoopSummary:
     reached: int
     mean_path_length: float  # metres, trials that reached the goal
     mean_time: float  # simulated seconds, trials that reached the goal
+    falls: int = 0  # trials in which the base left the floor plane (drop-off worlds)
 
     @classmethod
     def of(cls, outcomes: list[TrialOutcome]) -> ClosedLoopSummary:
-        arrived = [o for o in outcomes if o.reached and not o.collided]
+        arrived = [o for o in outcomes if o.reached and not o.collided and not o.fell]
         return cls(
             trials=len(outcomes),
             collisions=sum(o.collided for o in outcomes),
             reached=sum(o.reached for o in outcomes),
             mean_path_length=_mean([o.path_length for o in arrived]),
             mean_time=_mean([o.duration for o in arrived]),
+            falls=sum(o.fell for o in outcomes),
         )
 
 
@@ -61,6 +63,14 @@ class MethodResult:
     # What the method's streams did with the scored scans: scans, fused, compensated,
     # deskewed, passed (empty for `lidar`, which has no stream).
     stream: dict[str, int] = field(default_factory=dict)
+    # Slots scored on worlds without drop-offs, and the false drop slots among them
+    # (`scanfuse.evaluate.drops`).
+    drop_free_slots: int = 0
+    false_drop_slots: int = 0
+
+    @property
+    def false_drop_rate(self) -> float:
+        return self.false_drop_slots / self.drop_free_slots if self.drop_free_slots else math.nan
 
 
 @dataclass(frozen=True)
@@ -86,6 +96,7 @@ class EvaluationResult:
                 row['trials'] = result.closed_loop.trials
                 row['collisions'] = result.closed_loop.collisions
                 row['reached'] = result.closed_loop.reached
+                row['falls'] = result.closed_loop.falls
             table[name] = row
         return table
 
@@ -147,6 +158,8 @@ def _method_from_dict(data: dict[str, Any]) -> MethodResult:
         maps={k: MapAgreement(**_none_to_nan(v)) for k, v in data['maps'].items()},
         closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
         stream={str(k): int(v) for k, v in data.get('stream', {}).items()},
+        drop_free_slots=int(data.get('drop_free_slots', 0)),
+        false_drop_slots=int(data.get('false_drop_slots', 0)),
     )
 
 

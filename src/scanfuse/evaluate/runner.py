@@ -30,6 +30,7 @@ from scanfuse.evaluate.closed_loop import (
     turn,
     turning_world,
 )
+from scanfuse.evaluate.drops import DropTally, FalseDropCounter
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
     GridSpec,
@@ -63,7 +64,7 @@ FIGURE_DISTANCE = 1.0  # metres from the robot to the obstacle's front in the sc
 class EvaluationSettings:
     """What an evaluation runs; `quick()` is the small version for tests and the demo."""
 
-    worlds: tuple[str, ...] = ('bookshelf', 'barricade', 'clutter')
+    worlds: tuple[str, ...] = ('bookshelf', 'barricade', 'clutter', 'ledge', 'stairs', 'hole')
     trials: int = 30  # seeded clutter worlds
     methods: tuple[str, ...] = tuple(METHODS)
     closed_loop_methods: tuple[str, ...] = CLOSED_LOOP_METHODS
@@ -83,6 +84,7 @@ class EvaluationSettings:
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
         base = cls(
+            worlds=('bookshelf', 'barricade', 'clutter', 'ledge'),
             trials=2,
             closed_loop_methods=('lidar', 'obstacle', 'obstacle-uncompensated'),
             resolution=(256, 144),
@@ -197,6 +199,8 @@ class Evaluation:
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
         self.tallies = {name: ScanTally() for name in settings.methods}
         self.world_tallies: dict[str, dict[str, ScanTally]] = {}
+        # False drop slots per method, over the scans of worlds without drop-offs.
+        self.drop_tallies = {name: DropTally() for name in settings.methods}
         self.outcomes: list[TrialOutcome] = []
         self.maps: dict[str, MapSet] = {}
         self.snapshots: dict[str, Snapshot] = {}
@@ -309,6 +313,8 @@ class Evaluation:
                 maps=maps,
                 closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
                 stream=dict(self.stream_counts.get(name, {})),
+                drop_free_slots=self.drop_tallies[name].slots,
+                false_drop_slots=self.drop_tallies[name].false_drops,
             )
         settings = {
             key: list(value) if isinstance(value, tuple) else value
@@ -350,6 +356,7 @@ class _Scorer:
             range_max=sim.lidar_profile.range_max,
             camera=camera,
             extrinsics=Extrinsics.from_config(base),
+            drops=sim.world.drops,
         )
         self.group_tallies = evaluation.world_tallies.setdefault(
             group, {name: ScanTally() for name in settings.methods}
@@ -363,6 +370,17 @@ class _Scorer:
             else None
         )
         self.front = _obstacle_front(sim.world)
+        extrinsics = Extrinsics.from_config(base)
+        self.false_drops = (
+            None
+            if sim.world.drops
+            else FalseDropCounter.of(
+                sim.world.obstacles,
+                sim.lidar_profile.grid,
+                (base.min_obstacle_height, base.max_obstacle_height),
+                extrinsics.base_to_laser.rpy()[2],
+            )
+        )
 
     def add(self, stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         name = self._names.get(stream)
@@ -380,6 +398,12 @@ class _Scorer:
         for name, scan in scans.items():
             evaluation.tallies[name].add(scan.ranges, truth)
             self.group_tallies[name].add(scan.ranges, truth)
+            if self.false_drops is not None:
+                evaluation.drop_tallies[name].add(
+                    self.false_drops.mask(
+                        scan.ranges, truth.truth, frame.origin[:2], frame.pose.yaw
+                    )
+                )
             if self.maps is not None:
                 self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
         front = self.front
@@ -405,7 +429,10 @@ class _Scorer:
 
 
 def _obstacle_front(world: World) -> float | None:
-    """x of the nearest face of the bookshelf or barricade, for the scan figure's frame."""
+    """x of the nearest face of the bookshelf or barricade, or of the ledge's edge, for the
+    scan figure's frame."""
+    if world.name == 'ledge':
+        return float(min(drop.rectangle[0] for drop in world.drops))
     kinds = {'bookshelf': 'shelf_board', 'barricade': 'barricade_base'}
     kind = kinds.get(world.name)
     if kind is None:

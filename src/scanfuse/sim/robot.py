@@ -15,6 +15,10 @@ from scanfuse.sim.worlds import Pose2D
 
 ROBOT_GEOM_GROUP = 3
 ROBOT_BODY = 'robot'
+# The base has left the floor plane once it is this much below where it settled, metres:
+# far above what the wheels sink into the floor or rock on the casters (millimetres), far
+# below any step a robot can fall down (a stair rises 0.15-0.20 m).
+FALL_DEPTH = 0.05
 
 
 @dataclass(frozen=True)

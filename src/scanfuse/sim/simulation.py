@@ -45,7 +45,7 @@ from scanfuse.config import FusionConfig
 from scanfuse.headless_gl import HEADLESS_BACKENDS
 from scanfuse.scan import Scan
 from scanfuse.sim.errors import SimError
-from scanfuse.sim.robot import ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
+from scanfuse.sim.robot import FALL_DEPTH, ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
 from scanfuse.sim.sensors import (
     LASER_FRAME,
     DepthBackend,
@@ -74,10 +74,6 @@ NANOSECONDS = 1_000_000_000
 # ROS tools treat as "latest"; the run is still fully deterministic.
 EPOCH_NS = 1_700_000_000 * NANOSECONDS
 SETTLE_TIME = 0.3
-# The base has left the floor plane once it is this much below where it settled, metres:
-# far above what the wheels sink into the floor or rock on the casters (millimetres), far
-# below any step a robot can fall down (a stair rises 0.15-0.20 m).
-FALL_DEPTH = 0.05
 _DEFAULTS = FusionConfig()
 # camera_link (x forward, z up) -> optical frame (z forward, x right, y down), REP-103.
 LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])

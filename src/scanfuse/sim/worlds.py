@@ -180,11 +180,11 @@ class World:
         extent = 2.0 + max(abs(value) for value in self.bounds)
         rgba = 'rgba="0.8 0.8 0.8 1" friction="1 0.005 0.0001"'
         bottom = -self.floor_depth
-        plane = (
-            'floor',
+        plane_mjcf = (
             f'<geom name="floor" type="plane" pos="0 0 {bottom:.6g}" '
-            f'size="{extent:.3f} {extent:.3f} 0.1" {rgba}/>',
+            f'size="{extent:.3f} {extent:.3f} 0.1" {rgba}/>'
         )
+        plane = ('floor', plane_mjcf)
         if not self.drops:
             return [plane]
         pieces = [plane]
@@ -199,12 +199,13 @@ class World:
         return pieces
 
 
-def _block(name: str, area: tuple[float, float, float, float], z: tuple[float, float], rgba: str) -> tuple[str, str]:
+def _block(
+    name: str, area: tuple[float, float, float, float], z: tuple[float, float], rgba: str
+) -> tuple[str, str]:
     x0, x1, y0, y1 = area
-    geom = (
-        f'<geom name="{name}" type="box" pos="{_fmt((x0 + x1) / 2, (y0 + y1) / 2, (z[0] + z[1]) / 2)}" '
-        f'size="{_fmt((x1 - x0) / 2, (y1 - y0) / 2, (z[1] - z[0]) / 2)}" {rgba}/>'
-    )
+    centre = _fmt((x0 + x1) / 2, (y0 + y1) / 2, (z[0] + z[1]) / 2)
+    half = _fmt((x1 - x0) / 2, (y1 - y0) / 2, (z[1] - z[0]) / 2)
+    geom = f'<geom name="{name}" type="box" pos="{centre}" size="{half}" {rgba}/>'
     return name, geom
 
 
