@@ -86,6 +86,8 @@ class TruthScanner:
         facing = edge[:, 1] * a[:, 0] - edge[:, 0] * a[:, 1] <= 0.0
         a, edge = a[facing], edge[facing]
         b = b[facing]
+        if a.shape[0] == 0:  # inside a drop's footprint (the robot fell in): nothing faces it
+            return best.astype(np.float32)
         self._bounding_rays(a, edge, best)
         self._points(np.concatenate([a, b]), best)
         self._perpendicular_feet(a, edge, best)
