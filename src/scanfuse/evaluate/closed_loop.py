@@ -77,14 +77,14 @@ class TrialSpec:
 
 # Goals behind the paper's two obstacles: straight through the bookshelf's boards,
 # and past the barricade where its top leaves room and its base does not.
-# In the drop worlds the straight line from the start to the goal crosses the drop (0.5 m
+# In the drop worlds the straight line from the start to the goal crosses the drop (0.45 m
 # into the ledge's yard; through the middle of the stairwell and of the hole), and the
 # floor around it leads there: the walkway north of the ledge, 0.9-1.4 m beside the others.
 FIXED_GOALS = {
     'bookshelf': (2.8, 0.0),
     'barricade': (2.5, 0.6),
     'room': (2.0, 1.5),
-    'ledge': (4.0, 0.95),
+    'ledge': (4.0, 1.2),
     'stairs': (3.4, 0.0),
     'hole': (3.2, 0.0),
 }

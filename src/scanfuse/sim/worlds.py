@@ -574,9 +574,9 @@ def clutter_world(seed: int = 0) -> World:
 # ---------------------------------------------------------------- drop-offs
 
 DROP_ROOM = (-1.5, 4.5, -2.0, 2.0)
-# Where the drop worlds' robot starts: 1 m south of the room's axis, facing +x, so that the
-# straight line to a goal on the walkway past the ledge crosses the ledge 0.5 m deep.
-DROP_START = Pose2D(0.0, -1.0, 0.0)
+# Where the ledge world's robot starts: 0.5 m from the south wall, facing +x, so that the
+# straight line to a goal on the walkway past the ledge crosses into the yard 0.45 m deep.
+DROP_START = Pose2D(0.0, -1.5, 0.0)
 
 
 def _drop_world(name: str, seed: int, drops: tuple[Drop, ...], start: Pose2D) -> World:
@@ -586,7 +586,7 @@ def _drop_world(name: str, seed: int, drops: tuple[Drop, ...], start: Pose2D) ->
 
 
 def ledge_world(
-    seed: int = 0, *, edge: float = 2.0, walkway: float = 0.5, depth: float = 0.4
+    seed: int = 0, *, edge: float = 2.0, walkway: float = 0.3, depth: float = 0.4
 ) -> World:
     """A loading dock: the floor ends at x = `edge` (a `depth` m drop to the yard) for every
     y below `walkway`; north of it a walkway runs on to the east wall."""

@@ -1,0 +1,117 @@
+"""Falls in results and report, false drop slots, and the drop worlds' trials."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from scanfuse.evaluate.closed_loop import FIXED_GOALS, TrialOutcome
+from scanfuse.evaluate.drops import FalseDropCounter, distance_to_footprints
+from scanfuse.evaluate.metrics import ScanTally
+from scanfuse.evaluate.report import headline_rows, markdown
+from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
+from scanfuse.scan import AngleGrid
+from scanfuse.sim.worlds import box, make_world
+
+OUTCOME = TrialOutcome(
+    trial='ledge-0',
+    method='lidar',
+    collided=False,
+    first_contact_kind='',
+    first_contact_time=math.nan,
+    reached=False,
+    final_distance=2.5,
+    path_length=2.5,
+    duration=8.7,
+    planned_length=4.0,
+    fell=True,
+    fall_time=7.7,
+)
+
+
+def test_falls_round_trip_through_results_json(tmp_path):
+    safe = replace(OUTCOME, method='lidar', trial='hole-0', fell=False, fall_time=math.nan)
+    outcomes = [OUTCOME, safe]
+    loop = ClosedLoopSummary.of(outcomes)
+    assert (loop.trials, loop.falls, loop.collisions) == (2, 1, 0)
+    method = MethodResult(
+        'lidar',
+        'LiDAR alone',
+        ScanTally().summary(),
+        {},
+        {},
+        loop,
+        drop_free_slots=4000,
+        false_drop_slots=1,
+    )
+    settings = {'worlds': ['ledge', 'hole'], 'trials': 0, 'resolution': [256, 144], 'noise': True}
+    result = EvaluationResult(settings, {'lidar': method}, outcomes)
+    loaded = EvaluationResult.load(result.save(tmp_path / 'results.json'))
+    loaded_loop = loaded.methods['lidar'].closed_loop
+    assert loaded_loop is not None
+    assert (loaded_loop.trials, loaded_loop.falls, loaded_loop.collisions) == (2, 1, 0)
+    assert [t.fell for t in loaded.trials] == [True, False]
+    assert loaded.trials[0].fall_time == pytest.approx(7.7)
+    assert math.isnan(loaded.trials[1].fall_time)
+    assert loaded.methods['lidar'].false_drop_rate == pytest.approx(1 / 4000)
+    assert loaded.headline()['lidar']['falls'] == 1
+    # The falls column sits between collisions and goals reached.
+    assert headline_rows(loaded)[0][-3:] == ['0/2', '1/2', '0/2']
+    report = markdown(loaded)
+    assert '| collisions | falls | goals reached |' in report
+    assert '## False drop slots per method' in report
+    assert '| lidar | 4000 | 1 | 0.03 % |' in report
+
+
+def test_a_results_file_without_falls_reads_as_no_falls():
+    text = EvaluationResult({}, {}, [replace(OUTCOME, fell=False, fall_time=math.nan)]).to_json()
+    data = json.loads(text)
+    for trial in data['trials']:
+        del trial['fell'], trial['fall_time']
+    assert EvaluationResult.from_json(json.dumps(data)).trials[0].fell is False
+
+
+def test_distance_to_footprints_by_hand():
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    points = np.array([[0.5, 0.5], [2.0, 0.5], [2.0, 2.0], [-0.3, 0.2]])
+    distance = distance_to_footprints(points, [square])
+    assert distance == pytest.approx([0.0, 1.0, math.sqrt(2.0), 0.3])
+
+
+def test_false_drop_slots_are_short_readings_on_open_floor_only():
+    grid = AngleGrid(-math.pi / 2, math.pi / 4, 5)  # -90, -45, 0, 45, 90 degrees
+    # A box whose near face is 2 m ahead (x = 2), 0.4 m wide: slot 2 (0 degrees) sees it.
+    crate = box('crate', 'low_box', (2.1, 0.0), (0.1, 0.2), (0.0, 0.2))
+    counter = FalseDropCounter.of((crate,), grid, (0.03, 0.5))
+    truth = np.array([np.inf, np.inf, 2.0, np.inf, np.inf], dtype=np.float32)
+    fused = np.array(
+        [
+            np.inf,  # free and free: nothing
+            1.0,  # 1 m at -45 degrees: (0.71, -0.71), 1.4 m from the crate: a false drop
+            1.85,  # 0.15 m short of the crate's face, beyond the tolerance, but beside it
+            np.nan,  # no measurement is never false
+            -np.inf,  # too close: an obstacle at range zero, 1.9 m from the crate
+        ],
+        dtype=np.float32,
+    )
+    mask = counter.mask(fused, truth, (0.0, 0.0), 0.0)
+    # -Inf is not a point on the floor: only finite short readings land somewhere.
+    assert mask.tolist() == [False, True, False, False, False]
+    # The same readings within the tolerance (0.05 m + 2 %) of the truth are no false drops.
+    within = np.where(np.isfinite(truth), truth - 0.05, np.inf).astype(np.float32)
+    assert not counter.mask(within, truth, (0.0, 0.0), 0.0).any()
+
+
+def test_drop_world_goals_lie_on_the_floor_across_the_drop_from_the_start():
+    for name in ('ledge', 'stairs', 'hole'):
+        world = make_world(name)
+        goal = FIXED_GOALS[name]
+        start = np.array([world.start.x, world.start.y])
+        assert not any(drop.contains(*goal) for drop in world.drops)
+        # The straight line from the start to the goal passes over the drop.
+        line = start + np.linspace(0.0, 1.0, 200)[:, None] * (np.array(goal) - start)
+        assert any(drop.contains(*point) for point in line for drop in world.drops), name
