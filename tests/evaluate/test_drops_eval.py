@@ -9,11 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scanfuse.config import FusionConfig
 from scanfuse.evaluate.closed_loop import FIXED_GOALS, TrialOutcome
 from scanfuse.evaluate.drops import FalseDropCounter, distance_to_footprints
 from scanfuse.evaluate.metrics import ScanTally
 from scanfuse.evaluate.report import headline_rows, markdown
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
+from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
 from scanfuse.scan import AngleGrid
 from scanfuse.sim.worlds import box, make_world
 
@@ -115,3 +117,28 @@ def test_drop_world_goals_lie_on_the_floor_across_the_drop_from_the_start():
         # The straight line from the start to the goal passes over the drop.
         line = start + np.linspace(0.0, 1.0, 200)[:, None] * (np.array(goal) - start)
         assert any(drop.contains(*point) for point in line for drop in world.drops), name
+
+
+@pytest.mark.skipif(
+    'detect_drops' not in FusionConfig.model_fields,
+    reason='the obstacle method reports drops once the drop-off core (issue 15, item 1) is in',
+)
+def test_in_the_ledge_world_lidar_falls_and_obstacle_stops_and_arrives():
+    settings = EvaluationSettings.quick(
+        worlds=('ledge',),
+        trials=0,
+        turning=(),
+        methods=('lidar', 'obstacle'),
+        closed_loop_methods=('lidar', 'obstacle'),
+    )
+    evaluation = Evaluation(settings)
+    evaluation.run()
+    outcomes = {o.method: o for o in evaluation.outcomes}
+    assert outcomes['lidar'].fell
+    assert not outcomes['lidar'].reached
+    assert not outcomes['obstacle'].fell
+    assert outcomes['obstacle'].reached
+    # The dock edge is a low obstacle of its own kind: the LiDAR plane never sees it.
+    result = evaluation.result([])
+    assert result.methods['lidar'].scan.recall_by_kind['ledge'] < 0.05
+    assert result.methods['obstacle'].scan.recall_by_kind['ledge'] > 0.3

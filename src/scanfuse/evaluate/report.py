@@ -373,7 +373,7 @@ def _scan_figure(evaluation: Evaluation, label: str, out: Path) -> Path:
 
 
 FIGURE_GAP = '1 m before the obstacle'
-FIGURE_GAP_DROP = '1 m before the edge (hatched: floor missing)'
+FIGURE_GAP_DROP = '1 m before the edge'
 
 
 def _extent(spec: GridSpec) -> tuple[float, float, float, float]:
