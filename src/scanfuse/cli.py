@@ -147,9 +147,9 @@ def params(
 @app.command()
 def simulate(
     out: Annotated[Path, typer.Option('--out', help='bag to write: NAME.mcap file or folder')],
-    world: Annotated[str, typer.Option(help='room | bookshelf | barricade | clutter')] = (
-        'bookshelf'
-    ),
+    world: Annotated[
+        str, typer.Option(help='room | bookshelf | barricade | clutter | ledge | stairs | hole')
+    ] = 'bookshelf',
     path: Annotated[
         str, typer.Option(help='scripted drive: straight | rotate | rotate-fast | arc | lap')
     ] = 'straight',
@@ -210,7 +210,8 @@ def evaluate(
         bool, typer.Option('--quick', help='small run: 2 clutter worlds, low resolution')
     ] = False,
     worlds: Annotated[
-        str | None, typer.Option(help='comma-separated: bookshelf,barricade,clutter,room')
+        str | None,
+        typer.Option(help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole'),
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
 ) -> None:

@@ -77,6 +77,20 @@ def save_snapshot(
                 zorder=1,
             )
         )
+    for drop in world.drops:
+        # Where the floor is missing: hatched, so the points on its edge stay visible.
+        axes.add_patch(
+            Polygon(
+                drop.footprint,
+                closed=True,
+                fill=False,
+                hatch='//',
+                edgecolor='#ef6c00',
+                linewidth=0.8,
+                label=f'{drop.kind} (floor missing)',
+                zorder=1,
+            )
+        )
     lidar = scan_points(frame.scan, frame)
     truth = scan_points(frame.truth, frame)
     origin = frame.origin[:2]
