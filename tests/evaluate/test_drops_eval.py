@@ -11,13 +11,12 @@ import pytest
 
 from scanfuse.config import FusionConfig
 from scanfuse.evaluate.closed_loop import FIXED_GOALS, TrialOutcome
-from scanfuse.evaluate.drops import FalseDropCounter, distance_to_footprints
+from scanfuse.evaluate.drops import false_drop_slots, reports_drops
 from scanfuse.evaluate.metrics import ScanTally
 from scanfuse.evaluate.report import headline_rows, markdown
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
-from scanfuse.scan import AngleGrid
-from scanfuse.sim.worlds import box, make_world
+from scanfuse.sim.worlds import make_world
 
 OUTCOME = TrialOutcome(
     trial='ledge-0',
@@ -77,35 +76,30 @@ def test_a_results_file_without_falls_reads_as_no_falls():
     assert EvaluationResult.from_json(json.dumps(data)).trials[0].fell is False
 
 
-def test_distance_to_footprints_by_hand():
-    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-    points = np.array([[0.5, 0.5], [2.0, 0.5], [2.0, 2.0], [-0.3, 0.2]])
-    distance = distance_to_footprints(points, [square])
-    assert distance == pytest.approx([0.0, 1.0, math.sqrt(2.0), 0.3])
-
-
-def test_false_drop_slots_are_short_readings_on_open_floor_only():
-    grid = AngleGrid(-math.pi / 2, math.pi / 4, 5)  # -90, -45, 0, 45, 90 degrees
-    # A box whose near face is 2 m ahead (x = 2), 0.4 m wide: slot 2 (0 degrees) sees it.
-    crate = box('crate', 'low_box', (2.1, 0.0), (0.1, 0.2), (0.0, 0.2))
-    counter = FalseDropCounter.of((crate,), grid, (0.03, 0.5))
-    truth = np.array([np.inf, np.inf, 2.0, np.inf, np.inf], dtype=np.float32)
-    fused = np.array(
+def test_false_drop_slots_are_what_drops_alone_moved_short_of_the_truth():
+    # Truth per slot: a wall 3 m away everywhere. Tolerance 0.05 m + 2 %: 0.11 m at 3 m.
+    truth = np.full(5, 3.0, dtype=np.float32)
+    without = np.array([3.0, 1.0, 3.0, 3.0, np.nan], dtype=np.float32)
+    with_drops = np.array(
         [
-            np.inf,  # free and free: nothing
-            1.0,  # 1 m at -45 degrees: (0.71, -0.71), 1.4 m from the crate: a false drop
-            1.85,  # 0.15 m short of the crate's face, beyond the tolerance, but beside it
-            np.nan,  # no measurement is never false
-            -np.inf,  # too close: an obstacle at range zero, 1.9 m from the crate
+            1.5,  # drops put a point at 1.5 m where there was floor: false drop
+            1.0,  # short of the truth, but so it is without drops (floor noise): not a drop
+            2.95,  # 5 cm short: within the tolerance of the truth
+            3.0,  # the same as without drops
+            1.5,  # nothing to compare with (NaN without drops): never counted
         ],
         dtype=np.float32,
     )
-    mask = counter.mask(fused, truth, (0.0, 0.0), 0.0)
-    # -Inf is not a point on the floor: only finite short readings land somewhere.
-    assert mask.tolist() == [False, True, False, False, False]
-    # The same readings within the tolerance (0.05 m + 2 %) of the truth are no false drops.
-    within = np.where(np.isfinite(truth), truth - 0.05, np.inf).astype(np.float32)
-    assert not counter.mask(within, truth, (0.0, 0.0), 0.0).any()
+    mask = false_drop_slots(with_drops, without, truth)
+    assert mask.tolist() == [True, False, False, False, False]
+    # Drops that move a reading closer by less than the tolerance are not false drops either.
+    assert not false_drop_slots(np.float32([0.97]), np.float32([1.0]), np.float32([3.0])).any()
+
+
+def test_only_methods_that_report_drops_run_a_drop_free_twin():
+    assert reports_drops(FusionConfig()) == ('detect_drops' in FusionConfig.model_fields)
+    if 'detect_drops' in FusionConfig.model_fields:
+        assert not reports_drops(FusionConfig().with_changes(detect_drops=False))
 
 
 def test_drop_world_goals_lie_on_the_floor_across_the_drop_from_the_start():

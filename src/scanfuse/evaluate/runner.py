@@ -30,7 +30,7 @@ from scanfuse.evaluate.closed_loop import (
     turn,
     turning_world,
 )
-from scanfuse.evaluate.drops import DropTally, FalseDropCounter
+from scanfuse.evaluate.drops import DropTally, false_drop_slots, reports_drops
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
     GridSpec,
@@ -57,6 +57,7 @@ if TYPE_CHECKING:
     from scanfuse.sim.worlds import World
 
 MAP_RESOLUTION = 0.05
+DROPS_OFF = '(detect_drops off)'  # a twin stream's label in the scorer
 FIGURE_DISTANCE = 1.0  # metres from the robot to the obstacle's front in the scan figures
 
 
@@ -347,6 +348,19 @@ class _Scorer:
         camera = sim.camera
         self.streams = [MethodStream(name, base, camera, transforms) for name in settings.methods]
         self._names = {stream: stream.name for stream in self.streams}
+        # On a world without drop-offs, each method that reports drops runs a twin with
+        # detect_drops off on the same events: its scans tell the false drop slots.
+        self._twins: dict[str, str] = {}
+        if not sim.world.drops:
+            for stream in list(self.streams):
+                if reports_drops(stream.config):
+                    twin = MethodStream(
+                        stream.name, base.with_changes(detect_drops=False), camera, transforms
+                    )
+                    self._twins[stream.name] = f'{stream.name} {DROPS_OFF}'
+                    self._names[twin] = self._twins[stream.name]
+        self._scored = list(self.streams)  # without the twins
+        self.streams = list(self._names)
         self._pending: dict[int, dict[str, Scan]] = {}
         self.truths = SlotTruthBuilder(
             sim.world.obstacles,
@@ -370,17 +384,6 @@ class _Scorer:
             else None
         )
         self.front = _obstacle_front(sim.world)
-        extrinsics = Extrinsics.from_config(base)
-        self.false_drops = (
-            None
-            if sim.world.drops
-            else FalseDropCounter.of(
-                sim.world.obstacles,
-                sim.lidar_profile.grid,
-                (base.min_obstacle_height, base.max_obstacle_height),
-                extrinsics.base_to_laser.rpy()[2],
-            )
-        )
 
     def add(self, stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         name = self._names.get(stream)
@@ -395,14 +398,14 @@ class _Scorer:
     def _score(self, frame: LidarFrame, scans: dict[str, Scan]) -> None:
         evaluation = self.evaluation
         truth = self.truths.build(frame)
+        twins = {self._twins[name]: scans.pop(self._twins[name]) for name in self._twins}
         for name, scan in scans.items():
             evaluation.tallies[name].add(scan.ranges, truth)
             self.group_tallies[name].add(scan.ranges, truth)
-            if self.false_drops is not None:
+            twin = twins.get(self._twins.get(name, ''))
+            if twin is not None:
                 evaluation.drop_tallies[name].add(
-                    self.false_drops.mask(
-                        scan.ranges, truth.truth, frame.origin[:2], frame.pose.yaw
-                    )
+                    false_drop_slots(scan.ranges, twin.ranges, truth.truth)
                 )
             if self.maps is not None:
                 self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
@@ -413,7 +416,7 @@ class _Scorer:
 
     def close(self) -> None:
         """Add up what the streams did (every stream released every scan: none is lost)."""
-        for stream in self.streams:
+        for stream in self._scored:
             counts = stream.counts
             if counts is None:
                 continue
