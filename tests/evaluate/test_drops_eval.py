@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from scanfuse.config import FusionConfig
+from scanfuse.config import FusionConfig, Method
 from scanfuse.evaluate.closed_loop import FIXED_GOALS, TrialOutcome
 from scanfuse.evaluate.drops import false_drop_slots, reports_drops
 from scanfuse.evaluate.metrics import ScanTally
@@ -96,10 +96,13 @@ def test_false_drop_slots_are_what_drops_alone_moved_short_of_the_truth():
     assert not false_drop_slots(np.float32([0.97]), np.float32([1.0]), np.float32([3.0])).any()
 
 
-def test_only_methods_that_report_drops_run_a_drop_free_twin():
-    assert reports_drops(FusionConfig()) == ('detect_drops' in FusionConfig.model_fields)
+def test_only_the_obstacle_method_with_drops_on_reports_drops():
+    obstacle = FusionConfig(method=Method.OBSTACLE)
+    assert reports_drops(obstacle) == ('detect_drops' in FusionConfig.model_fields)
+    assert not reports_drops(obstacle, fuses=False)  # `lidar`: the driver's scan, no fusion
+    assert not reports_drops(FusionConfig(method=Method.ROW))
     if 'detect_drops' in FusionConfig.model_fields:
-        assert not reports_drops(FusionConfig().with_changes(detect_drops=False))
+        assert not reports_drops(obstacle.with_changes(detect_drops=False))
 
 
 def test_drop_world_goals_lie_on_the_floor_across_the_drop_from_the_start():

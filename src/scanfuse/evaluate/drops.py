@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from scanfuse.config import Method
 from scanfuse.evaluate.metrics import Tolerance, false_obstacle_slots
 
 if TYPE_CHECKING:
@@ -32,9 +33,12 @@ if TYPE_CHECKING:
     F32 = npt.NDArray[np.float32]
 
 
-def reports_drops(config: FusionConfig) -> bool:
-    """Whether a method's configuration reports drop-offs (False before drops existed)."""
-    return bool(getattr(config, 'detect_drops', False))
+def reports_drops(config: FusionConfig, *, fuses: bool = True) -> bool:
+    """Whether a method reports drop-offs: the obstacle method with `detect_drops` on (False
+    for every method before drops existed)."""
+    return (
+        fuses and config.method is Method.OBSTACLE and bool(getattr(config, 'detect_drops', False))
+    )
 
 
 def false_drop_slots(

@@ -353,7 +353,7 @@ class _Scorer:
         self._twins: dict[str, str] = {}
         if not sim.world.drops:
             for stream in list(self.streams):
-                if reports_drops(stream.config):
+                if reports_drops(stream.config, fuses=stream.spec.fuses):
                     twin = MethodStream(
                         stream.name, base.with_changes(detect_drops=False), camera, transforms
                     )
