@@ -218,8 +218,8 @@ def markdown(result: EvaluationResult) -> str:
             [
                 [
                     name,
-                    str(m.drop_free_slots),
-                    str(m.false_drop_slots),
+                    str(m.drop_free_slots) if m.drop_free_slots else '-',
+                    str(m.false_drop_slots) if m.drop_free_slots else '-',
                     _percent(m.false_drop_rate),
                 ]
                 for name, m in result.methods.items()
