@@ -75,7 +75,7 @@ def demo(
     ),
 ) -> None:
     """Run scanfuse on the embedded default and write a report with figures."""
-    from scanfuse.demo import run_demo  # noqa: PLC0415
+    from scanfuse.app.demo import run_demo  # noqa: PLC0415
 
     run_demo(out, console=Console())
 
@@ -177,7 +177,7 @@ def simulate(
     camera_pitch: Annotated[float, typer.Option(help='camera pitch, degrees down')] = 20.0,
 ) -> None:
     """Simulate a robot in an indoor world and record its sensors and ground truth as a bag."""
-    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     if depth_backend != 'multiray':
         choose_headless_gl()
