@@ -21,6 +21,10 @@ What differs is only which points are looked at, and in which order:
   not depend on the order in which it is visited, so neither does the output.
 - `nearest_squared_parallel` splits the columns into bands, one per thread, each with its
   own k nearest, and merges them per slot (k smallest of the parts' k smallest).
+- Drop-offs (the module docstring of `obstacle`): a pixel whose depth lies in its drop
+  interval is the point at its floor crossing depth, kept in rows count + slot of
+  `nearest` (and bins + bin of `bound`): the slab's and the drops' k nearest side by side,
+  so one insertion serves both. With drops off every drop interval is empty.
 
 Every index is checked against the arrays it reads, and a point whose coordinates are not
 finite (a translation beyond float32 range, NaN in the motion) is dropped before it could
@@ -41,12 +45,15 @@ BLOCK = 256
 _F32_BELOW_MAX = 3.0e38
 
 
-def _pick(nearest: Any, spread: float, best: Any) -> None:
-    """Per slot the farthest of its k nearest within spread r^2 of the nearest (r its range).
+def _pick(nearest: Any, spread: float, best: Any, drops: Any) -> None:
+    """Per slot the farthest of its k nearest within spread r^2 of the nearest (r its range),
+    or the nearest drop crossing when the slot holds k drop points and it is nearer.
 
-    `obstacle._cluster_range_squared`, the same float64 arithmetic, slot by slot.
+    `obstacle._pick` (`_cluster_range_squared`), the same float64 arithmetic, slot by slot;
+    rows count + s of `nearest` are slot s's drop points.
     """
-    count, k = nearest.shape
+    k = nearest.shape[1]
+    count = min(best.size, drops.size, nearest.shape[0] // 2)
     for s in range(count):
         first = np.float64(nearest[s, 0])
         root = math.sqrt(first) + spread * first
@@ -55,7 +62,11 @@ def _pick(nearest: Any, spread: float, best: Any) -> None:
         for j in range(1, k):
             if nearest[s, j] <= limit:
                 last = j
-        best[s] = nearest[s, last]
+        slab = nearest[s, last]
+        drop_first = nearest[count + s, 0]
+        is_drop = nearest[count + s, k - 1] < np.inf and drop_first < slab
+        best[s] = drop_first if is_drop else slab
+        drops[s] = is_drop
 
 
 def _accumulate(
@@ -64,6 +75,9 @@ def _accumulate(
     hi: Any,
     a_x: Any,
     a_y: Any,
+    drop_lo: Any,
+    drop_hi: Any,
+    floor: Any,
     b_x: np.float32,
     b_y: np.float32,
     m_cos: np.float32,
@@ -75,6 +89,8 @@ def _accumulate(
     columns: Any,
     block_lo: Any,
     block_hi: Any,
+    block_drop_lo: Any,
+    block_drop_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -90,23 +106,31 @@ def _accumulate(
     The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
     each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
     their pixels, so a block whose depths are all outside is skipped reading the image
-    alone.
+    alone; so do `block_drop_lo`, `block_drop_hi` for the drop intervals [drop_lo, drop_hi].
 
-    `nearest` (slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
-    fewer; `bound` (one per pseudo-angle bin) an upper bound of the k-th of every slot the
+    `nearest` (2 slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
+    fewer, of its slab points (row slot) and of its drop points (row slots + slot); `bound`
+    (2 x one per pseudo-angle bin, the same way) an upper bound of the k-th of every slot the
     bin touches (-Inf for a bin without a slot). Both are updated in place.
     """
-    count, k = nearest.shape
-    bins = first.size
+    k = nearest.shape[1]
+    count = nearest.shape[0] // 2
+    bins = min(first.size, second.size, before.size, middle.size, after.size)
+    bins = min(bins, bound.size // 2)
     last_bin = bins - 1
     size = min(depth.size, lo.size, hi.size, a_x.size, a_y.size)
+    size = min(size, drop_lo.size, drop_hi.size, floor.size)
     pseudo_of = np.empty(BLOCK, np.float64)
     bin_of = np.empty(BLOCK, np.int64)
+    side_of = np.empty(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
     chosen = np.empty(BLOCK, np.int64)
     column_start = max(columns[0], 0)
     column_stop = min(columns[1], width)
-    block_rows, blocks = block_lo.shape
+    block_rows = min(block_lo.shape[0], block_drop_lo.shape[0])
+    blocks = min(block_lo.shape[1], block_hi.shape[1], block_drop_lo.shape[1])
+    blocks = min(blocks, block_drop_hi.shape[1])
+    block_rows = min(block_rows, block_hi.shape[0], block_drop_hi.shape[0])
     for row in rows:
         row_start = row * width + column_start
         row_stop = row * width + column_stop
@@ -118,6 +142,7 @@ def _accumulate(
             if not 0 <= block < blocks:
                 break
             least, greatest = block_lo[row, block], block_hi[row, block]
+            drop_least, drop_greatest = block_drop_lo[row, block], block_drop_hi[row, block]
             block += 1
             # Slices, so the loops below index from 0 and compile without wraparound checks.
             z_block = depth[start:stop]
@@ -125,17 +150,25 @@ def _accumulate(
             near_slab = 0
             for i in range(n):
                 z = z_block[i]
-                near_slab += (z >= least) & (z <= greatest)
+                near_slab += ((z >= least) & (z <= greatest)) | (
+                    (z >= drop_least) & (z <= drop_greatest)
+                )
             if near_slab == 0:
                 continue
             lo_block = lo[start:stop]
             hi_block = hi[start:stop]
             ax_block = a_x[start:stop]
             ay_block = a_y[start:stop]
+            drop_lo_block = drop_lo[start:stop]
+            drop_hi_block = drop_hi[start:stop]
+            floor_block = floor[start:stop]
             for i in range(n):
                 z = z_block[i]
-                keep = (z >= lo_block[i]) & (z <= hi_block[i])
-                z32 = np.float32(z)
+                in_slab = (z >= lo_block[i]) & (z <= hi_block[i])
+                drop = (z >= drop_lo_block[i]) & (z <= drop_hi_block[i]) & (not in_slab)
+                keep = in_slab | drop
+                # A drop pixel is the point where its line of sight crosses the floor.
+                z32 = floor_block[i] if drop else np.float32(z)
                 x_seen = ax_block[i] * z32 + b_x
                 y_seen = ay_block[i] * z32 + b_y
                 # Motion compensation (identity: x_seen, y_seen up to the sign of zero).
@@ -150,6 +183,7 @@ def _accumulate(
                 pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
                 pseudo_of[i] = pseudo
                 bin_of[i] = min(np.int64(pseudo * scale), last_bin)
+                side_of[i] = np.int64(drop)
                 squared[i] = x * x + y * y if good else np.float32(np.inf)
             # The candidates, nearer than their bin's bound as the block starts (bounds only
             # fall, so this keeps every point the exact test below would): compacted without
@@ -157,7 +191,7 @@ def _accumulate(
             found = 0
             for i in range(n):
                 chosen[found] = i
-                found += squared[i] < bound[bin_of[i]]
+                found += squared[i] < bound[bin_of[i] + bins * side_of[i]]
             for c in range(found):
                 i = chosen[c]
                 r2 = squared[i]
@@ -169,29 +203,35 @@ def _accumulate(
                     slot = middle[index]
                 else:
                     slot = before[index]
-                if 0 <= slot < count and r2 < nearest[slot, k - 1]:
+                rows_at = count * side_of[i]  # 0: the slab's rows, count: the drops'
+                if 0 <= slot < count and r2 < nearest[rows_at + slot, k - 1]:
                     j = k - 1
-                    while j > 0 and nearest[slot, j - 1] > r2:
-                        nearest[slot, j] = nearest[slot, j - 1]
+                    while j > 0 and nearest[rows_at + slot, j - 1] > r2:
+                        nearest[rows_at + slot, j] = nearest[rows_at + slot, j - 1]
                         j -= 1
-                    nearest[slot, j] = r2
+                    nearest[rows_at + slot, j] = r2
                 # The bin's bound is the largest k-th of its slots (-Inf for no slot).
                 tight = -np.inf
                 for candidate in (before[index], middle[index], after[index]):
                     if 0 <= candidate < count:
-                        tight = max(tight, nearest[candidate, k - 1])
-                bound[index] = tight
+                        tight = max(tight, nearest[rows_at + candidate, k - 1])
+                bound[index + bins * side_of[i]] = tight
 
 
 def _reset(nearest: Any, bound: Any, before: Any, middle: Any, after: Any) -> None:
-    """Every slot empty (Inf); a bin's bound Inf when it touches a slot, else -Inf."""
-    count = nearest.shape[0]
+    """Every slot empty (Inf); a bin's bound Inf when it touches a slot, else -Inf.
+
+    `nearest` and `bound` hold the slab's rows and bins, then the drops' (`_accumulate`).
+    """
+    count = nearest.shape[0] // 2
+    bins = min(bound.size // 2, before.size, middle.size, after.size)
     nearest[:] = np.inf
-    for index in range(bound.size):
+    bound[:] = -np.inf
+    for index in range(bins):
         touches = (
             0 <= before[index] < count or 0 <= middle[index] < count or 0 <= after[index] < count
         )
-        bound[index] = np.inf if touches else -np.inf
+        bound[index] = bound[bins + index] = np.inf if touches else -np.inf
 
 
 def _merge(into: Any, other: Any) -> None:
@@ -280,6 +320,9 @@ def _nearest_squared(
     hi: Any,
     a_x: Any,
     a_y: Any,
+    drop_lo: Any,
+    drop_hi: Any,
+    floor: Any,
     b_x: np.float32,
     b_y: np.float32,
     m_cos: np.float32,
@@ -290,6 +333,8 @@ def _nearest_squared(
     width: int,
     block_lo: Any,
     block_hi: Any,
+    block_drop_lo: Any,
+    block_drop_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -300,15 +345,18 @@ def _nearest_squared(
     nearest: Any,
     bound: Any,
     best: Any,
+    drops: Any,
 ) -> None:
-    """One thread: fill `nearest` (slots x k) and `best` (the reported squared range)."""
+    """One thread: fill `nearest` (2 slots x k), `best` (the reported squared range) and
+    `drops` (the slots whose range is a drop's edge)."""
     reset(nearest, bound, before, middle, after)
     every = np.array([0, width, 0])
     accumulate(
-        depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
-        block_lo, block_hi, scale, first, second, before, middle, after, nearest, bound,
+        depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
+        rows, width, every, block_lo, block_hi, block_drop_lo, block_drop_hi, scale, first,
+        second, before, middle, after, nearest, bound,
     )  # fmt: skip
-    pick(nearest, spread, best)
+    pick(nearest, spread, best, drops)
 
 
 def _nearest_squared_parallel(
@@ -317,6 +365,9 @@ def _nearest_squared_parallel(
     hi: Any,
     a_x: Any,
     a_y: Any,
+    drop_lo: Any,
+    drop_hi: Any,
+    floor: Any,
     b_x: np.float32,
     b_y: np.float32,
     m_cos: np.float32,
@@ -328,6 +379,8 @@ def _nearest_squared_parallel(
     parts: Any,
     block_lo: Any,
     block_hi: Any,
+    block_drop_lo: Any,
+    block_drop_hi: Any,
     scale: float,
     first: Any,
     second: Any,
@@ -338,6 +391,7 @@ def _nearest_squared_parallel(
     nearest: Any,
     bound: Any,
     best: Any,
+    drops: Any,
 ) -> None:
     """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p
     (their blocks from parts[p, 2] on).
@@ -350,13 +404,13 @@ def _nearest_squared_parallel(
     for p in numba.prange(parts.shape[0]):
         reset(nearest[p], bound[p], before, middle, after)
         accumulate(
-            depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, parts[p],
-            block_lo, block_hi, scale, first, second, before, middle, after, nearest[p],
-            bound[p],
+            depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, m_cos, m_sin, m_tx,
+            m_ty, rows, width, parts[p], block_lo, block_hi, block_drop_lo, block_drop_hi, scale,
+            first, second, before, middle, after, nearest[p], bound[p],
         )  # fmt: skip
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
-    pick(nearest[0], spread, best)
+    pick(nearest[0], spread, best, drops)
 
 
 nearest_squared = _jit(_nearest_squared)
