@@ -606,11 +606,12 @@ class ObstacleProjector:
         b_x, b_y = laser.translation[0], laser.translation[1]
         self._b = (np.float32(b_x), np.float32(b_y))
         # lo, hi, a_x, a_y, then the drop interval lo, hi and the floor crossing depth Z0.
-        self._metres = tuple(np.empty(pixels, dtype=np.float32) for _ in range(7))
-        self._millimetres = tuple(
-            np.empty(pixels, dtype=dtype)
-            for dtype in (np.uint16, np.uint16, np.float32, np.float32)
-            + (np.uint16, np.uint16, np.float32)
+        self._metres: tuple[npt.NDArray[Any], ...] = tuple(
+            np.empty(pixels, dtype=np.float32) for _ in range(7)
+        )
+        u16, f32 = np.uint16, np.float32
+        self._millimetres: tuple[npt.NDArray[Any], ...] = tuple(
+            np.empty(pixels, dtype=dtype) for dtype in (u16, u16, f32, f32, u16, u16, f32)
         )
         typical = np.empty(shape[0])
         tile_arcs: list[tuple[F64, F64]] = []
@@ -661,8 +662,10 @@ class ObstacleProjector:
                 table[part] = values
             lo_mm, hi_mm = _millimetre_interval(lo, hi)
             drop_lo_mm, drop_hi_mm = _millimetre_interval(drop_lo, drop_hi)
-            millimetres = (lo_mm, hi_mm, a_x * MILLIMETRE, a_y * MILLIMETRE)
-            millimetres += (drop_lo_mm, drop_hi_mm, floor / MILLIMETRE)
+            millimetres: tuple[npt.NDArray[Any], ...] = (
+                *(lo_mm, hi_mm, a_x * MILLIMETRE, a_y * MILLIMETRE),
+                *(drop_lo_mm, drop_hi_mm, floor / MILLIMETRE),
+            )
             for table, values in zip(self._millimetres, millimetres, strict=True):
                 table[part] = values
             typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
@@ -689,8 +692,8 @@ class ObstacleProjector:
         self._bands = _column_bands(camera.width, self.threads, block)
         self._block_extremes = {
             np.dtype(tables[0].dtype): (
-                *_block_extremes(*tables[:2], shape, self._bands, block),
-                *_block_extremes(*tables[4:6], shape, self._bands, block),
+                *_block_extremes(tables[0], tables[1], shape, self._bands, block),
+                *_block_extremes(tables[4], tables[5], shape, self._bands, block),
             )
             for tables in (self._millimetres, self._metres)
         }
@@ -728,7 +731,8 @@ class ObstacleProjector:
     @property
     def drop_slots(self) -> Mask:
         """The slots whose reading in the last frame is a drop-off's edge (a copy)."""
-        return self._drop_slots.copy()
+        slots: Mask = self._drop_slots.copy()
+        return slots
 
     @property
     def uses_kernel(self) -> bool:
