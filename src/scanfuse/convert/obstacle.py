@@ -97,8 +97,11 @@ MAX_THREADS = 64
 # A drop needs a reading this many noise sigmas (depth_noise Z0^2) behind the floor: a
 # Gaussian floor reading goes this far once in 1e9 (and a slot needs min_points of them).
 DROP_NOISE_SIGMAS = 6.0
-# The upper end of a drop pixel's depth interval in float32 metres: every finite reading.
-_F32_MAX = float(np.finfo(np.float32).max)
+# The upper end of every drop interval: any finite reading (uint16 has no infinity).
+_DROP_TOP = {
+    np.dtype(np.uint16): np.uint16(np.iinfo(np.uint16).max),
+    np.dtype(np.float32): np.finfo(np.float32).max,
+}
 
 
 def _pseudo_angle(x: F64, y: F64) -> F64:
@@ -221,17 +224,23 @@ def _nearest_squared_numpy(
     motion: tuple[np.float32, np.float32, np.float32, np.float32],
     lookup: SlotLookup,
     nearest: F32,
-    drops: tuple[npt.NDArray[Any], npt.NDArray[Any], F32],
+    drops: tuple[npt.NDArray[Any], Any, F32] | None,
 ) -> None:
     """The reference (and the fallback without numba): the same reduction, vectorised.
 
-    `drops` are the drop interval [lo, hi] and the floor crossing depth Z0 per pixel;
-    `nearest` has 2 x slots rows: the slab's points, then the drops' (see `_pick`).
+    `drops` are the start of the drop interval per pixel, its end (one for all: the
+    largest finite depth) and the floor crossing depth Z0 per pixel (NaN where the pixel
+    cannot see a drop); `nearest` has 2 x slots rows: the slab's points, then the drops'.
     """
-    drop_lo, drop_hi, floor = drops
     with np.errstate(invalid='ignore'):
         in_slab = (depth >= lo) & (depth <= hi)
-        drop = (depth >= drop_lo) & (depth <= drop_hi) & ~in_slab
+    if drops is None:
+        drop = np.zeros(depth.shape, dtype=np.bool_)
+        floor: F32 = np.zeros(depth.shape, dtype=np.float32)
+    else:
+        drop_lo, top, floor = drops
+        with np.errstate(invalid='ignore'):
+            drop = (depth >= drop_lo) & (depth <= top) & ~in_slab
     keep = np.flatnonzero(in_slab | drop)
     is_drop = drop[keep]
     z = np.where(is_drop, floor[keep], depth[keep].astype(np.float32))
@@ -352,7 +361,7 @@ def _drop_interval(
     """Per pixel the depths [lo, hi] that are drop-offs and the floor crossing depth Z0.
 
     `horizontal` is the horizontal distance the pixel's point moves per unit of Z.
-    lo > hi (and Z0 = 0) where the pixel cannot see a drop: its ray does not go down, or
+    lo > hi (and Z0 NaN) where the pixel cannot see a drop: its ray does not go down, or
     meets the floor outside the range limits.
     """
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -365,7 +374,7 @@ def _drop_interval(
     possible &= np.isfinite(margin)
     lo = np.where(possible, floor + margin, np.inf)
     hi = np.where(possible, np.inf, -np.inf)
-    return lo, hi, np.where(possible, floor, 0.0)
+    return lo, hi, np.where(possible, floor, np.nan)
 
 
 def _millimetre_interval(lo: F64, hi: F64) -> tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint16]]:
@@ -605,13 +614,14 @@ class ObstacleProjector:
         rotation = laser.rotation_matrix
         b_x, b_y = laser.translation[0], laser.translation[1]
         self._b = (np.float32(b_x), np.float32(b_y))
-        # lo, hi, a_x, a_y, then the drop interval lo, hi and the floor crossing depth Z0.
+        # lo, hi, a_x, a_y, then where the drop interval starts (it ends at the largest
+        # finite depth, `_DROP_TOP`) and the floor crossing depth Z0 (NaN: cannot see drops).
         self._metres: tuple[npt.NDArray[Any], ...] = tuple(
-            np.empty(pixels, dtype=np.float32) for _ in range(7)
+            np.empty(pixels, dtype=np.float32) for _ in range(6)
         )
         u16, f32 = np.uint16, np.float32
         self._millimetres: tuple[npt.NDArray[Any], ...] = tuple(
-            np.empty(pixels, dtype=dtype) for dtype in (u16, u16, f32, f32, u16, u16, f32)
+            np.empty(pixels, dtype=dtype) for dtype in (u16, u16, f32, f32, u16, f32)
         )
         typical = np.empty(shape[0])
         tile_arcs: list[tuple[F64, F64]] = []
@@ -637,7 +647,7 @@ class ObstacleProjector:
             )
             if drops is None:
                 drop_lo = np.full(a_z.shape, np.inf)
-                drop_hi, floor = -drop_lo, np.zeros(a_z.shape)
+                drop_hi, floor = -drop_lo, np.full(a_z.shape, np.nan)
             else:
                 horizontal = np.hypot(
                     base_rotation[0, 0] * x_n + base_rotation[0, 1] * y_n + base_rotation[0, 2],
@@ -657,14 +667,13 @@ class ObstacleProjector:
             far = ((a_x * far_z + b_x) * sight, (a_y * far_z + b_y) * sight)
             first, last = _pixel_arcs(near, far, lidar_grid)
             tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
-            metres = (lo, hi, a_x, a_y, drop_lo, np.minimum(drop_hi, _F32_MAX), floor)
+            metres = (lo, hi, a_x, a_y, drop_lo, floor)
             for table, values in zip(self._metres, metres, strict=True):
                 table[part] = values
             lo_mm, hi_mm = _millimetre_interval(lo, hi)
-            drop_lo_mm, drop_hi_mm = _millimetre_interval(drop_lo, drop_hi)
             millimetres: tuple[npt.NDArray[Any], ...] = (
                 *(lo_mm, hi_mm, a_x * MILLIMETRE, a_y * MILLIMETRE),
-                *(drop_lo_mm, drop_hi_mm, floor / MILLIMETRE),
+                *(_millimetre_interval(drop_lo, drop_hi)[0], floor / MILLIMETRE),
             )
             for table, values in zip(self._millimetres, millimetres, strict=True):
                 table[part] = values
@@ -693,7 +702,7 @@ class ObstacleProjector:
         self._block_extremes = {
             np.dtype(tables[0].dtype): (
                 *_block_extremes(tables[0], tables[1], shape, self._bands, block),
-                *_block_extremes(tables[4], tables[5], shape, self._bands, block),
+                _block_extremes(tables[4], tables[4], shape, self._bands, block)[0],
             )
             for tables in (self._millimetres, self._metres)
         }
@@ -772,7 +781,8 @@ class ObstacleProjector:
             )
             raise InputError(msg)
         tables = self._millimetres if depth.dtype == np.uint16 else self._metres
-        lo, hi, a_x, a_y, drop_lo, drop_hi, floor = tables
+        lo, hi, a_x, a_y, drop_lo, floor = tables
+        top = _DROP_TOP[depth.dtype]
         b_x, b_y = self._b
         moved = _motion32(motion)
         lookup = self.lookup
@@ -780,22 +790,22 @@ class ObstacleProjector:
         if kernel is None or reference:
             _nearest_squared_numpy(
                 depth, lo, hi, a_x, a_y, b_x, b_y, moved, lookup, self._nearest,
-                (drop_lo, drop_hi, floor),
+                None if self.drops is None else (drop_lo, top, floor),
             )  # fmt: skip
             _pick(self._nearest, self.cluster_spread, self._best, self._drop_slots)
             return self._best
         depth = np.ascontiguousarray(depth)
         slots = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
-        extremes = self._block_extremes[depth.dtype]
+        extremes = (*self._block_extremes[depth.dtype], self.drops is not None)
         if self.threads == 1:
             kernel.nearest_squared(
-                depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, *moved, self._rows,
+                depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
                 self.camera.width, *extremes, *slots, lookup.after, self.cluster_spread,
                 self._nearest, self._bound[0], self._best, self._drop_slots,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
-                depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, *moved, self._rows,
+                depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
                 self.camera.width, self._bands, *extremes, *slots, lookup.after,
                 self.cluster_spread, self._part_nearest, self._bound, self._best,
                 self._drop_slots,

@@ -22,9 +22,9 @@ What differs is only which points are looked at, and in which order:
 - `nearest_squared_parallel` splits the columns into bands, one per thread, each with its
   own k nearest, and merges them per slot (k smallest of the parts' k smallest).
 - Drop-offs (the module docstring of `obstacle`): a pixel whose depth lies in its drop
-  interval is the point at its floor crossing depth, kept in rows count + slot of
+  interval [drop_lo, top] is the point at its floor crossing depth, kept in rows count + slot of
   `nearest` (and bins + bin of `bound`): the slab's and the drops' k nearest side by side,
-  so one insertion serves both. With drops off every drop interval is empty.
+  so one insertion serves both. With drops off the loops are the plain slab's.
 
 Every index is checked against the arrays it reads, and a point whose coordinates are not
 finite (a translation beyond float32 range, NaN in the motion) is dropped before it could
@@ -76,7 +76,7 @@ def _accumulate(
     a_x: Any,
     a_y: Any,
     drop_lo: Any,
-    drop_hi: Any,
+    top: Any,
     floor: Any,
     b_x: np.float32,
     b_y: np.float32,
@@ -90,7 +90,7 @@ def _accumulate(
     block_lo: Any,
     block_hi: Any,
     block_drop_lo: Any,
-    block_drop_hi: Any,
+    with_drops: bool,
     scale: float,
     first: Any,
     second: Any,
@@ -106,7 +106,8 @@ def _accumulate(
     The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
     each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
     their pixels, so a block whose depths are all outside is skipped reading the image
-    alone; so do `block_drop_lo`, `block_drop_hi` for the drop intervals [drop_lo, drop_hi].
+    alone; so does `block_drop_lo` (least drop_lo) for the drop intervals [drop_lo, top].
+    Without `with_drops` the loops are the plain slab's (drop_lo, floor are not read).
 
     `nearest` (2 slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
     fewer, of its slab points (row slot) and of its drop points (row slots + slot); `bound`
@@ -119,18 +120,17 @@ def _accumulate(
     bins = min(bins, bound.size // 2)
     last_bin = bins - 1
     size = min(depth.size, lo.size, hi.size, a_x.size, a_y.size)
-    size = min(size, drop_lo.size, drop_hi.size, floor.size)
+    if with_drops:
+        size = min(size, drop_lo.size, floor.size)
     pseudo_of = np.empty(BLOCK, np.float64)
     bin_of = np.empty(BLOCK, np.int64)
-    side_of = np.empty(BLOCK, np.int64)
+    side_of = np.zeros(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
     chosen = np.empty(BLOCK, np.int64)
     column_start = max(columns[0], 0)
     column_stop = min(columns[1], width)
-    block_rows = min(block_lo.shape[0], block_drop_lo.shape[0])
+    block_rows = min(block_lo.shape[0], block_hi.shape[0], block_drop_lo.shape[0])
     blocks = min(block_lo.shape[1], block_hi.shape[1], block_drop_lo.shape[1])
-    blocks = min(blocks, block_drop_hi.shape[1])
-    block_rows = min(block_rows, block_hi.shape[0], block_drop_hi.shape[0])
     for row in rows:
         row_start = row * width + column_start
         row_stop = row * width + column_stop
@@ -142,49 +142,73 @@ def _accumulate(
             if not 0 <= block < blocks:
                 break
             least, greatest = block_lo[row, block], block_hi[row, block]
-            drop_least, drop_greatest = block_drop_lo[row, block], block_drop_hi[row, block]
+            drop_least = block_drop_lo[row, block]
             block += 1
             # Slices, so the loops below index from 0 and compile without wraparound checks.
             z_block = depth[start:stop]
             n = z_block.size
             near_slab = 0
-            for i in range(n):
-                z = z_block[i]
-                near_slab += ((z >= least) & (z <= greatest)) | (
-                    (z >= drop_least) & (z <= drop_greatest)
-                )
-            if near_slab == 0:
-                continue
             lo_block = lo[start:stop]
             hi_block = hi[start:stop]
             ax_block = a_x[start:stop]
             ay_block = a_y[start:stop]
-            drop_lo_block = drop_lo[start:stop]
-            drop_hi_block = drop_hi[start:stop]
-            floor_block = floor[start:stop]
-            for i in range(n):
-                z = z_block[i]
-                in_slab = (z >= lo_block[i]) & (z <= hi_block[i])
-                drop = (z >= drop_lo_block[i]) & (z <= drop_hi_block[i]) & (not in_slab)
-                keep = in_slab | drop
-                # A drop pixel is the point where its line of sight crosses the floor.
-                z32 = floor_block[i] if drop else np.float32(z)
-                x_seen = ax_block[i] * z32 + b_x
-                y_seen = ay_block[i] * z32 + b_y
-                # Motion compensation (identity: x_seen, y_seen up to the sign of zero).
-                x = m_cos * x_seen - m_sin * y_seen + m_tx
-                y = m_sin * x_seen + m_cos * y_seen + m_ty
-                x64 = np.float64(x)
-                y64 = np.float64(y)
-                norm = abs(x64) + abs(y64)
-                # Not finite (inf, NaN) or at the origin: no direction, never indexed.
-                good = keep & (norm > 0.0) & (norm < np.inf)
-                ratio = x64 / (norm if good else 1.0)
-                pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
-                pseudo_of[i] = pseudo
-                bin_of[i] = min(np.int64(pseudo * scale), last_bin)
-                side_of[i] = np.int64(drop)
-                squared[i] = x * x + y * y if good else np.float32(np.inf)
+            # Two copies of the loops, with drops and without (the branch is per call): the
+            # plain slab's cost stays what it was when drops are off.
+            if with_drops:
+                for i in range(n):
+                    z = z_block[i]
+                    # Every drop interval ends at `top`: only its start is tested here.
+                    near_slab += ((z >= least) & (z <= greatest)) | (z >= drop_least)
+                if near_slab == 0:
+                    continue
+                drop_lo_block = drop_lo[start:stop]
+                floor_block = floor[start:stop]
+                for i in range(n):
+                    z = z_block[i]
+                    in_slab = (z >= lo_block[i]) & (z <= hi_block[i])
+                    drop = (z >= drop_lo_block[i]) & (z <= top) & (not in_slab)
+                    # A drop pixel is the point where its line of sight crosses the floor
+                    # (NaN for a pixel that cannot see a drop: dropped below as not finite).
+                    z32 = floor_block[i] if drop else np.float32(z)
+                    x_seen = ax_block[i] * z32 + b_x
+                    y_seen = ay_block[i] * z32 + b_y
+                    # Motion compensation (identity: x_seen, y_seen up to the sign of zero).
+                    x = m_cos * x_seen - m_sin * y_seen + m_tx
+                    y = m_sin * x_seen + m_cos * y_seen + m_ty
+                    x64 = np.float64(x)
+                    y64 = np.float64(y)
+                    norm = abs(x64) + abs(y64)
+                    # Not finite (inf, NaN) or at the origin: no direction, never indexed.
+                    good = (in_slab | drop) & (norm > 0.0) & (norm < np.inf)
+                    ratio = x64 / (norm if good else 1.0)
+                    pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
+                    pseudo_of[i] = pseudo
+                    bin_of[i] = min(np.int64(pseudo * scale), last_bin)
+                    side_of[i] = np.int64(drop)
+                    squared[i] = x * x + y * y if good else np.float32(np.inf)
+            else:
+                for i in range(n):
+                    z = z_block[i]
+                    near_slab += (z >= least) & (z <= greatest)
+                if near_slab == 0:
+                    continue
+                for i in range(n):
+                    z = z_block[i]
+                    keep = (z >= lo_block[i]) & (z <= hi_block[i])
+                    z32 = np.float32(z)
+                    x_seen = ax_block[i] * z32 + b_x
+                    y_seen = ay_block[i] * z32 + b_y
+                    x = m_cos * x_seen - m_sin * y_seen + m_tx
+                    y = m_sin * x_seen + m_cos * y_seen + m_ty
+                    x64 = np.float64(x)
+                    y64 = np.float64(y)
+                    norm = abs(x64) + abs(y64)
+                    good = keep & (norm > 0.0) & (norm < np.inf)
+                    ratio = x64 / (norm if good else 1.0)
+                    pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
+                    pseudo_of[i] = pseudo
+                    bin_of[i] = min(np.int64(pseudo * scale), last_bin)
+                    squared[i] = x * x + y * y if good else np.float32(np.inf)
             # The candidates, nearer than their bin's bound as the block starts (bounds only
             # fall, so this keeps every point the exact test below would): compacted without
             # a branch, as speckle makes them unpredictable.
@@ -321,7 +345,7 @@ def _nearest_squared(
     a_x: Any,
     a_y: Any,
     drop_lo: Any,
-    drop_hi: Any,
+    top: Any,
     floor: Any,
     b_x: np.float32,
     b_y: np.float32,
@@ -334,7 +358,7 @@ def _nearest_squared(
     block_lo: Any,
     block_hi: Any,
     block_drop_lo: Any,
-    block_drop_hi: Any,
+    with_drops: bool,
     scale: float,
     first: Any,
     second: Any,
@@ -352,9 +376,9 @@ def _nearest_squared(
     reset(nearest, bound, before, middle, after)
     every = np.array([0, width, 0])
     accumulate(
-        depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
-        rows, width, every, block_lo, block_hi, block_drop_lo, block_drop_hi, scale, first,
-        second, before, middle, after, nearest, bound,
+        depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows,
+        width, every, block_lo, block_hi, block_drop_lo, with_drops, scale, first, second,
+        before, middle, after, nearest, bound,
     )  # fmt: skip
     pick(nearest, spread, best, drops)
 
@@ -366,7 +390,7 @@ def _nearest_squared_parallel(
     a_x: Any,
     a_y: Any,
     drop_lo: Any,
-    drop_hi: Any,
+    top: Any,
     floor: Any,
     b_x: np.float32,
     b_y: np.float32,
@@ -380,7 +404,7 @@ def _nearest_squared_parallel(
     block_lo: Any,
     block_hi: Any,
     block_drop_lo: Any,
-    block_drop_hi: Any,
+    with_drops: bool,
     scale: float,
     first: Any,
     second: Any,
@@ -404,9 +428,9 @@ def _nearest_squared_parallel(
     for p in numba.prange(parts.shape[0]):
         reset(nearest[p], bound[p], before, middle, after)
         accumulate(
-            depth, lo, hi, a_x, a_y, drop_lo, drop_hi, floor, b_x, b_y, m_cos, m_sin, m_tx,
-            m_ty, rows, width, parts[p], block_lo, block_hi, block_drop_lo, block_drop_hi, scale,
-            first, second, before, middle, after, nearest[p], bound[p],
+            depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
+            rows, width, parts[p], block_lo, block_hi, block_drop_lo, with_drops, scale, first,
+            second, before, middle, after, nearest[p], bound[p],
         )  # fmt: skip
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
