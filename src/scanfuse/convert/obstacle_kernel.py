@@ -123,8 +123,8 @@ def _accumulate(
     if with_drops:
         size = min(size, drop_lo.size, floor.size)
     pseudo_of = np.empty(BLOCK, np.float64)
+    # A point's bin, plus `bins` for a drop point: its entry in `bound`.
     bin_of = np.empty(BLOCK, np.int64)
-    side_of = np.zeros(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
     chosen = np.empty(BLOCK, np.int64)
     column_start = max(columns[0], 0)
@@ -148,19 +148,27 @@ def _accumulate(
             z_block = depth[start:stop]
             n = z_block.size
             near_slab = 0
+            near_drop = 0
+            if with_drops:
+                for i in range(n):
+                    z = z_block[i]
+                    near_slab += (z >= least) & (z <= greatest)
+                    # Every drop interval ends at `top`: only its start is tested here.
+                    near_drop += z >= drop_least
+            else:
+                for i in range(n):
+                    z = z_block[i]
+                    near_slab += (z >= least) & (z <= greatest)
+            if near_slab == 0 and near_drop == 0:
+                continue
+            # Sliced only here: slicing costs, and most blocks are skipped above.
             lo_block = lo[start:stop]
             hi_block = hi[start:stop]
             ax_block = a_x[start:stop]
             ay_block = a_y[start:stop]
-            # Two copies of the loops, with drops and without (the branch is per call): the
-            # plain slab's cost stays what it was when drops are off.
-            if with_drops:
-                for i in range(n):
-                    z = z_block[i]
-                    # Every drop interval ends at `top`: only its start is tested here.
-                    near_slab += ((z >= least) & (z <= greatest)) | (z >= drop_least)
-                if near_slab == 0:
-                    continue
+            # Two copies of the pass: with drops only for a block that may hold one, so a
+            # block of the slab alone (a wall, the floor's speckle) costs what it did.
+            if near_drop > 0:
                 drop_lo_block = drop_lo[start:stop]
                 floor_block = floor[start:stop]
                 for i in range(n):
@@ -183,15 +191,9 @@ def _accumulate(
                     ratio = x64 / (norm if good else 1.0)
                     pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
                     pseudo_of[i] = pseudo
-                    bin_of[i] = min(np.int64(pseudo * scale), last_bin)
-                    side_of[i] = np.int64(drop)
+                    bin_of[i] = min(np.int64(pseudo * scale), last_bin) + bins * np.int64(drop)
                     squared[i] = x * x + y * y if good else np.float32(np.inf)
             else:
-                for i in range(n):
-                    z = z_block[i]
-                    near_slab += (z >= least) & (z <= greatest)
-                if near_slab == 0:
-                    continue
                 for i in range(n):
                     z = z_block[i]
                     keep = (z >= lo_block[i]) & (z <= hi_block[i])
@@ -215,11 +217,13 @@ def _accumulate(
             found = 0
             for i in range(n):
                 chosen[found] = i
-                found += squared[i] < bound[bin_of[i] + bins * side_of[i]]
+                found += squared[i] < bound[bin_of[i]]
             for c in range(found):
                 i = chosen[c]
                 r2 = squared[i]
-                index = bin_of[i]
+                entry = bin_of[i]
+                side = np.int64(entry >= bins)  # 1: a drop point
+                index = entry - bins * side
                 pseudo = pseudo_of[i]
                 if pseudo >= second[index]:
                     slot = after[index]
@@ -227,7 +231,7 @@ def _accumulate(
                     slot = middle[index]
                 else:
                     slot = before[index]
-                rows_at = count * side_of[i]  # 0: the slab's rows, count: the drops'
+                rows_at = count * side  # 0: the slab's rows, count: the drops'
                 if 0 <= slot < count and r2 < nearest[rows_at + slot, k - 1]:
                     j = k - 1
                     while j > 0 and nearest[rows_at + slot, j - 1] > r2:
@@ -239,7 +243,7 @@ def _accumulate(
                 for candidate in (before[index], middle[index], after[index]):
                     if 0 <= candidate < count:
                         tight = max(tight, nearest[rows_at + candidate, k - 1])
-                bound[index + bins * side_of[i]] = tight
+                bound[entry] = tight
 
 
 def _reset(nearest: Any, bound: Any, before: Any, middle: Any, after: Any) -> None:
