@@ -218,6 +218,31 @@ def _accumulate(
             for i in range(n):
                 chosen[found] = i
                 found += squared[i] < bound[bin_of[i]]
+            if near_drop == 0:
+                # Slab points only: the plain insertion (`_accumulate_plain`'s).
+                for c in range(found):
+                    i = chosen[c]
+                    r2 = squared[i]
+                    index = bin_of[i]
+                    pseudo = pseudo_of[i]
+                    if pseudo >= second[index]:
+                        slot = after[index]
+                    elif pseudo >= first[index]:
+                        slot = middle[index]
+                    else:
+                        slot = before[index]
+                    if 0 <= slot < count and r2 < nearest[slot, k - 1]:
+                        j = k - 1
+                        while j > 0 and nearest[slot, j - 1] > r2:
+                            nearest[slot, j] = nearest[slot, j - 1]
+                            j -= 1
+                        nearest[slot, j] = r2
+                    tight = -np.inf
+                    for candidate in (before[index], middle[index], after[index]):
+                        if 0 <= candidate < count:
+                            tight = max(tight, nearest[candidate, k - 1])
+                    bound[index] = tight
+                continue
             for c in range(found):
                 i = chosen[c]
                 r2 = squared[i]
@@ -244,6 +269,134 @@ def _accumulate(
                     if 0 <= candidate < count:
                         tight = max(tight, nearest[rows_at + candidate, k - 1])
                 bound[entry] = tight
+
+
+def _accumulate_plain(
+    depth: Any,
+    lo: Any,
+    hi: Any,
+    a_x: Any,
+    a_y: Any,
+    b_x: np.float32,
+    b_y: np.float32,
+    m_cos: np.float32,
+    m_sin: np.float32,
+    m_tx: np.float32,
+    m_ty: np.float32,
+    rows: Any,
+    width: int,
+    columns: Any,
+    block_lo: Any,
+    block_hi: Any,
+    scale: float,
+    first: Any,
+    second: Any,
+    before: Any,
+    middle: Any,
+    after: Any,
+    nearest: Any,
+    bound: Any,
+) -> None:
+    """`_accumulate` without drops, as it was before them (its own compiled loops: the same
+    loops beside the drops' in one function ran 10 % slower).
+
+    Insert the kept points of `rows` (image row indices, in this order), columns
+    [columns[0], columns[1]) of each, into `nearest`.
+
+    The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
+    each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
+    their pixels, so a block whose depths are all outside is skipped reading the image
+    alone.
+
+    `nearest` (slots x k) holds each slot's k smallest squared ranges, ascending, Inf where
+    fewer; `bound` (one per pseudo-angle bin) an upper bound of the k-th of every slot the
+    bin touches (-Inf for a bin without a slot). Both are updated in place.
+    """
+    count, k = nearest.shape
+    bins = first.size
+    last_bin = bins - 1
+    size = min(depth.size, lo.size, hi.size, a_x.size, a_y.size)
+    pseudo_of = np.empty(BLOCK, np.float64)
+    bin_of = np.empty(BLOCK, np.int64)
+    squared = np.empty(BLOCK, np.float32)
+    chosen = np.empty(BLOCK, np.int64)
+    column_start = max(columns[0], 0)
+    column_stop = min(columns[1], width)
+    block_rows, blocks = block_lo.shape
+    for row in rows:
+        row_start = row * width + column_start
+        row_stop = row * width + column_stop
+        if not (0 <= row < block_rows and row_start < row_stop <= size):
+            continue
+        block = columns[2]
+        for start in range(row_start, row_stop, BLOCK):
+            stop = min(start + BLOCK, row_stop)
+            if not 0 <= block < blocks:
+                break
+            least, greatest = block_lo[row, block], block_hi[row, block]
+            block += 1
+            # Slices, so the loops below index from 0 and compile without wraparound checks.
+            z_block = depth[start:stop]
+            n = z_block.size
+            near_slab = 0
+            for i in range(n):
+                z = z_block[i]
+                near_slab += (z >= least) & (z <= greatest)
+            if near_slab == 0:
+                continue
+            lo_block = lo[start:stop]
+            hi_block = hi[start:stop]
+            ax_block = a_x[start:stop]
+            ay_block = a_y[start:stop]
+            for i in range(n):
+                z = z_block[i]
+                keep = (z >= lo_block[i]) & (z <= hi_block[i])
+                z32 = np.float32(z)
+                x_seen = ax_block[i] * z32 + b_x
+                y_seen = ay_block[i] * z32 + b_y
+                # Motion compensation (identity: x_seen, y_seen up to the sign of zero).
+                x = m_cos * x_seen - m_sin * y_seen + m_tx
+                y = m_sin * x_seen + m_cos * y_seen + m_ty
+                x64 = np.float64(x)
+                y64 = np.float64(y)
+                norm = abs(x64) + abs(y64)
+                # Not finite (inf, NaN) or at the origin: no direction, never indexed.
+                good = keep & (norm > 0.0) & (norm < np.inf)
+                ratio = x64 / (norm if good else 1.0)
+                pseudo = (1.0 - ratio if y64 >= 0.0 else 3.0 + ratio) if good else 0.0
+                pseudo_of[i] = pseudo
+                bin_of[i] = min(np.int64(pseudo * scale), last_bin)
+                squared[i] = x * x + y * y if good else np.float32(np.inf)
+            # The candidates, nearer than their bin's bound as the block starts (bounds only
+            # fall, so this keeps every point the exact test below would): compacted without
+            # a branch, as speckle makes them unpredictable.
+            found = 0
+            for i in range(n):
+                chosen[found] = i
+                found += squared[i] < bound[bin_of[i]]
+            for c in range(found):
+                i = chosen[c]
+                r2 = squared[i]
+                index = bin_of[i]
+                pseudo = pseudo_of[i]
+                if pseudo >= second[index]:
+                    slot = after[index]
+                elif pseudo >= first[index]:
+                    slot = middle[index]
+                else:
+                    slot = before[index]
+                if 0 <= slot < count and r2 < nearest[slot, k - 1]:
+                    j = k - 1
+                    while j > 0 and nearest[slot, j - 1] > r2:
+                        nearest[slot, j] = nearest[slot, j - 1]
+                        j -= 1
+                    nearest[slot, j] = r2
+                # The bin's bound is the largest k-th of its slots (-Inf for no slot).
+                tight = -np.inf
+                for candidate in (before[index], middle[index], after[index]):
+                    if 0 <= candidate < count:
+                        tight = max(tight, nearest[candidate, k - 1])
+                bound[index] = tight
 
 
 def _reset(nearest: Any, bound: Any, before: Any, middle: Any, after: Any) -> None:
@@ -338,6 +491,7 @@ _jit = _cached()
 seen_slots = _jit(_seen_slots)
 pick = _jit(_pick)
 accumulate = _jit(_accumulate)
+accumulate_plain = _jit(_accumulate_plain)
 reset = _jit(_reset)
 merge = _jit(_merge)
 
@@ -379,11 +533,17 @@ def _nearest_squared(
     `drops` (the slots whose range is a drop's edge)."""
     reset(nearest, bound, before, middle, after)
     every = np.array([0, width, 0])
-    accumulate(
-        depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows,
-        width, every, block_lo, block_hi, block_drop_lo, with_drops, scale, first, second,
-        before, middle, after, nearest, bound,
-    )  # fmt: skip
+    if with_drops:
+        accumulate(
+            depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
+            rows, width, every, block_lo, block_hi, block_drop_lo, with_drops, scale, first,
+            second, before, middle, after, nearest, bound,
+        )  # fmt: skip
+    else:
+        accumulate_plain(
+            depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
+            block_lo, block_hi, scale, first, second, before, middle, after, nearest, bound,
+        )  # fmt: skip
     pick(nearest, spread, best, drops)
 
 
@@ -431,11 +591,18 @@ def _nearest_squared_parallel(
     """
     for p in numba.prange(parts.shape[0]):
         reset(nearest[p], bound[p], before, middle, after)
-        accumulate(
-            depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
-            rows, width, parts[p], block_lo, block_hi, block_drop_lo, with_drops, scale, first,
-            second, before, middle, after, nearest[p], bound[p],
-        )  # fmt: skip
+        if with_drops:
+            accumulate(
+                depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx,
+                m_ty, rows, width, parts[p], block_lo, block_hi, block_drop_lo, with_drops,
+                scale, first, second, before, middle, after, nearest[p], bound[p],
+            )  # fmt: skip
+        else:
+            accumulate_plain(
+                depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width,
+                parts[p], block_lo, block_hi, scale, first, second, before, middle, after,
+                nearest[p], bound[p],
+            )  # fmt: skip
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
     pick(nearest[0], spread, best, drops)
