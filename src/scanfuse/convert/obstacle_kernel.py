@@ -24,7 +24,10 @@ What differs is only which points are looked at, and in which order:
 - Drop-offs (the module docstring of `obstacle`): a pixel whose depth lies in its drop
   interval [drop_lo, top] is the point at its floor crossing depth, kept in rows count + slot of
   `nearest` (and bins + bin of `bound`): the slab's and the drops' k nearest side by side,
-  so one insertion serves both. With drops off the loops are the plain slab's.
+  so one insertion serves both. With drops off `_accumulate_plain` (the loops as they were
+  before drops, compiled on their own) runs; with drops on, a block without a drop
+  candidate takes the plain pass and insertion (benchmark: drops on / off 1.04-1.07 on the
+  realistic room, uint16).
 
 Every index is checked against the arrays it reads, and a point whose coordinates are not
 finite (a translation beyond float32 range, NaN in the motion) is dropped before it could
