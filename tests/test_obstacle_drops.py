@@ -18,7 +18,7 @@ import pytest
 from scanfuse import FusionConfig, FusionPipeline, Scan
 from scanfuse.camera import CameraModel
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
-from scanfuse.errors import InputError
+from scanfuse.errors import ConfigError, InputError
 from scanfuse.motion import PlanarMotion
 from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics
@@ -299,3 +299,20 @@ def test_motion_moves_the_drop_edge():
 def test_bad_drop_limits(values, match):
     with pytest.raises(InputError, match=match):
         DropLimits(*values)
+
+
+@pytest.mark.parametrize(
+    ('values', 'match'),
+    [
+        ({'drop_min_depth': 0.0}, 'drop_min_depth: Input should be greater than 0'),
+        ({'drop_min_width': -0.01}, 'drop_min_width: Input should be greater than or equal'),
+        ({'depth_noise': 2.0}, 'depth_noise: Input should be less than or equal to 1'),
+    ],
+)
+def test_bad_drop_parameters_are_refused_by_the_config(values, match):
+    with pytest.raises(ConfigError, match=match):
+        FusionConfig.from_dict(values)
+
+
+def test_detect_drops_is_on_by_default():
+    assert FusionConfig().detect_drops
