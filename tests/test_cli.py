@@ -73,10 +73,10 @@ def test_missing_simulator_names_the_extra(tmp_path):
 # can signal it mid-run without guessing at timing; the signal ends the wait.
 BLOCKING_BAG = """
 import sys
-import scanfuse.ros.bag as bag
+import scanfuse.progress as progress
 from scanfuse.cli import main
 
-class Blocking(bag.NullProgress):
+class Blocking(progress.NullProgress):
     def __init__(self, *args, **kwargs):
         self.seen = 0
 
@@ -86,7 +86,7 @@ class Blocking(bag.NullProgress):
             print('fusing', flush=True)
             sys.stdin.readline()
 
-bag.RichProgress = Blocking
+progress.RichProgress = Blocking
 raise SystemExit(main(sys.argv[1:]))
 """
 

@@ -108,7 +108,8 @@ def bag(
 ) -> None:
     """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth."""
     from scanfuse.config import FusionConfig  # noqa: PLC0415
-    from scanfuse.ros.bag import RichProgress, fuse_bag  # noqa: PLC0415
+    from scanfuse.progress import RichProgress  # noqa: PLC0415
+    from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
     with terminate_as_interrupt():
@@ -123,7 +124,7 @@ def bag(
             overwrite=overwrite,
             write_depth_scan=not no_depth_scan,
             require_tf=require_tf,
-            progress=RichProgress(),
+            progress=RichProgress(unit='messages'),
         )
     Console().print(report.table())
 

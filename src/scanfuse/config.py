@@ -15,8 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from scanfuse.errors import ConfigError
-from scanfuse.sources import SourceSet, sources_to_params, split_sources
-from scanfuse.transforms import MAX_MOUNTING_OFFSET  # metres, per axis, sensor to base frame
+from scanfuse.sources import MAX_MOUNTING_OFFSET, SourceSet, sources_to_params, split_sources
 
 NODE_NAME = 'scanfuse'
 

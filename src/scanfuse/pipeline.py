@@ -20,7 +20,8 @@ from scanfuse.errors import InputError
 from scanfuse.fuse.merge import merge_scans
 from scanfuse.fuse.resample import Plan, apply_plan, build_plan
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
-from scanfuse.transforms import MAX_MOUNTING_OFFSET, Extrinsics
+from scanfuse.sources import MAX_MOUNTING_OFFSET
+from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
     import numpy as np

@@ -31,10 +31,11 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from scanfuse.errors import ConfigError
-from scanfuse.transforms import MAX_MOUNTING_OFFSET
 
 KINDS = ('lidars', 'cameras', 'clouds')
-_REACH = MAX_MOUNTING_OFFSET  # metres from the base: anything farther is a typo or an overflow
+# Metres from the base frame, per axis: a sensor farther is a typo or an overflow.
+MAX_MOUNTING_OFFSET = 100.0
+_REACH = MAX_MOUNTING_OFFSET
 
 
 class Mounting(BaseModel):

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scanfuse.errors import TransformError
+from scanfuse.sources import MAX_MOUNTING_OFFSET
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -42,7 +43,6 @@ _NORM_TOLERANCE = 1e-6
 MAX_TRANSLATION = 1.0e9
 # A sensor further than this from the base frame is a typo or a corrupt transform, not a
 # mounting (the bound of the `camera_*` and `lidar_*` parameters too).
-MAX_MOUNTING_OFFSET = 100.0
 
 
 def _quaternion_to_matrix(q: Quaternion) -> Matrix:

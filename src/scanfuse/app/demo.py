@@ -202,9 +202,10 @@ def run_demo(out: Path, console: Console) -> Path:
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     choose_headless_gl()  # before MuJoCo is imported: rendered depth where GL works
-    from scanfuse.evaluate.cli import RichProgress  # noqa: PLC0415
     from scanfuse.evaluate.report import table  # noqa: PLC0415
-    from scanfuse.evaluate.runner import EvaluationSettings, run_evaluation  # noqa: PLC0415
+    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
+    from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
+    from scanfuse.progress import RichProgress  # noqa: PLC0415
 
     out.mkdir(parents=True, exist_ok=True)
     core_figure = core_demo(out, console)

@@ -4,16 +4,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TaskID,
-    TextColumn,
-    TimeElapsedColumn,
-)
-
 from scanfuse.errors import ConfigError
+from scanfuse.progress import RichProgress
+from scanfuse.sim.worlds import WORLDS
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -22,41 +15,15 @@ if TYPE_CHECKING:
 
     from scanfuse.evaluate.results import EvaluationResult
 
-KNOWN_WORLDS = ('bookshelf', 'barricade', 'clutter', 'room', 'ledge', 'stairs', 'hole')
-
-
-class RichProgress:
-    """A rich progress bar over the closed-loop trials."""
-
-    def __init__(self, console: Console) -> None:
-        self._bar = Progress(
-            TextColumn('{task.description}'),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            console=console,
-        )
-        self._task = TaskID(0)
-
-    def start(self, description: str, total: int) -> None:
-        self._bar.start()
-        self._task = self._bar.add_task(description, total=total)
-
-    def advance(self) -> None:
-        self._bar.advance(self._task)
-
-    def finish(self) -> None:
-        self._bar.stop()
-
 
 def parse_worlds(worlds: str | None) -> tuple[str, ...] | None:
     if worlds is None:
         return None
     names = tuple(name.strip() for name in worlds.split(',') if name.strip())
-    unknown = [name for name in names if name not in KNOWN_WORLDS]
+    unknown = [name for name in names if name not in WORLDS]
     if unknown or not names:
         given = ', '.join(unknown) or '(none given)'
-        msg = f'unknown world(s) {given}; choose from {", ".join(KNOWN_WORLDS)}'
+        msg = f'unknown world(s) {given}; choose from {", ".join(WORLDS)}'
         raise ConfigError(msg)
     return names
 
@@ -75,7 +42,8 @@ def run_evaluate(
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
     choose_headless_gl()
     from scanfuse.evaluate.report import table  # noqa: PLC0415
-    from scanfuse.evaluate.runner import EvaluationSettings, run_evaluation  # noqa: PLC0415
+    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
+    from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
     changes: dict[str, object] = {}
     names = parse_worlds(worlds)

@@ -10,11 +10,8 @@ write results. All of it in real sensor time (`scanfuse.sim.simulation`).
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import asdict, dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Protocol
-
-import yaml
+from typing import TYPE_CHECKING, Any
 
 from scanfuse.evaluate.closed_loop import (
     CLOSED_LOOP_TIME_LIMIT,
@@ -37,16 +34,14 @@ from scanfuse.evaluate.mapping import (
     OccupancyGrid,
     compare_maps,
     rasterize_footprints,
-    save_map,
 )
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
 from scanfuse.evaluate.metrics import ScanTally
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
+from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     import numpy as np
     import numpy.typing as npt
 
@@ -93,27 +88,6 @@ class EvaluationSettings:
             mapped_trials=3,
         )
         return replace(base, **changes)
-
-
-class Progress(Protocol):
-    """Receives progress of the long work."""
-
-    def start(self, description: str, total: int) -> None: ...
-    def advance(self) -> None: ...
-    def finish(self) -> None: ...
-
-
-class NullProgress:
-    """The do-nothing progress that keeps the loop free of `if progress`."""
-
-    def start(self, description: str, total: int) -> None:
-        del description, total
-
-    def advance(self) -> None:
-        pass
-
-    def finish(self) -> None:
-        pass
 
 
 def base_config(sim: Simulation) -> FusionConfig:
@@ -446,49 +420,6 @@ def _obstacle_front(world: World) -> float | None:
 # ---------------------------------------------------------------- writing
 
 
-def write_outputs(evaluation: Evaluation, out: Path, config: FusionConfig) -> EvaluationResult:
-    """Figures, maps, the configuration, results.json and report.md in `out`."""
-    from scanfuse.evaluate import report  # noqa: PLC0415
-
-    out.mkdir(parents=True, exist_ok=True)
-    files = report.write_figures(evaluation, out)
-    files += _write_maps(evaluation, out)
-    config_path = out / 'scanfuse.yaml'
-    config_path.write_text(
-        yaml.safe_dump(config.to_ros_params(), sort_keys=False), encoding='utf-8'
-    )
-    settings_path = out / 'evaluation.yaml'
-    settings_path.write_text(
-        yaml.safe_dump(
-            {
-                k: list(v) if isinstance(v, tuple) else v
-                for k, v in asdict(evaluation.settings).items()
-            },
-            sort_keys=False,
-        ),
-        encoding='utf-8',
-    )
-    files += [config_path.name, settings_path.name, 'results.json', 'report.md']
-    result = evaluation.result(sorted(files))
-    result.save(out / 'results.json')
-    (out / 'report.md').write_text(report.markdown(result), encoding='utf-8')
-    return result
-
-
-def _write_maps(evaluation: Evaluation, out: Path) -> list[str]:
-    maps_dir = out / 'maps'
-    if maps_dir.exists():
-        shutil.rmtree(maps_dir)
-    maps_dir.mkdir()
-    written = []
-    for label, map_set in evaluation.maps.items():
-        for name in ('lidar', 'obstacle'):
-            if name in map_set.grids:
-                pgm, description = save_map(map_set.grids[name], maps_dir / f'{label}_{name}')
-                written += [f'maps/{pgm.name}', f'maps/{description.name}']
-    return written
-
-
 def odometry_world_poses(world: World, log: DriveLog) -> list[tuple[float, float, float]]:
     """Where the wheel odometry believed the LiDAR was, in the world frame, per kept frame."""
     poses = []
@@ -498,19 +429,4 @@ def odometry_world_poses(world: World, log: DriveLog) -> list[tuple[float, float
     return poses
 
 
-def run_evaluation(
-    out: Path, settings: EvaluationSettings, progress: Progress | None = None
-) -> EvaluationResult:
-    """Run the evaluation and write everything into `out`."""
-    evaluation = Evaluation(settings, progress)
-    evaluation.run()
-    first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
-    reference = make_simulation(first, settings)
-    try:
-        config = base_config(reference)
-    finally:
-        reference.close()
-    return write_outputs(evaluation, out, config)
-
-
-__all__ = ['Evaluation', 'EvaluationSettings', 'Progress', 'run_evaluation']
+__all__ = ['Evaluation', 'EvaluationSettings', 'Progress']

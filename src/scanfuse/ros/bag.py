@@ -26,12 +26,11 @@ from dataclasses import dataclass, field
 from enum import Enum
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import apsw
 import numpy as np
 import yaml
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from rosbags.convert.converter import (
     LATCH,
@@ -50,6 +49,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
 from scanfuse.frames import frame_name
+from scanfuse.progress import NullProgress, Progress
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
@@ -112,55 +112,6 @@ class Storage(str, Enum):
 
 
 _PLUGINS = {Storage.MCAP: StoragePlugin.MCAP, Storage.SQLITE3: StoragePlugin.SQLITE3}
-
-
-class BagProgress(Protocol):
-    """Where `fuse_bag` reports how far it got (a progress bar, or nothing)."""
-
-    def start(self, total: int) -> None: ...
-
-    def advance(self, count: int = 1) -> None: ...
-
-    def stop(self) -> None: ...
-
-
-class NullProgress:
-    """Reports nowhere, so the processing loop never branches on whether a bar is shown."""
-
-    def start(self, total: int) -> None:
-        pass
-
-    def advance(self, count: int = 1) -> None:
-        pass
-
-    def stop(self) -> None:
-        pass
-
-
-class RichProgress:
-    """A rich progress bar over the messages of the input bag."""
-
-    def __init__(self, description: str = 'fusing') -> None:
-        self._progress = Progress(
-            TextColumn('[progress.description]{task.description}'),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn('messages'),
-            TimeRemainingColumn(),
-            transient=False,
-        )
-        self._description = description
-        self._task: Any = None
-
-    def start(self, total: int) -> None:
-        self._progress.start()
-        self._task = self._progress.add_task(self._description, total=total)
-
-    def advance(self, count: int = 1) -> None:
-        self._progress.advance(self._task, count)
-
-    def stop(self) -> None:
-        self._progress.stop()
 
 
 @dataclass(frozen=True)
@@ -266,7 +217,7 @@ def fuse_bag(
     write_depth_scan: bool = True,
     require_tf: bool = False,
     distro: Distro = Distro.HUMBLE,
-    progress: BagProgress | None = None,
+    progress: Progress | None = None,
     strict: bool = False,
 ) -> BagReport:
     """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag.
@@ -890,7 +841,7 @@ class _BagJob:
     # ------------------------------------------------------------ the pass
 
     def run(
-        self, path: Path, storage: Storage, progress: BagProgress, *, strict: bool = False
+        self, path: Path, storage: Storage, progress: Progress, *, strict: bool = False
     ) -> dict[str, Any]:
         """Copy every message, feed the stream in log-time order, write what it releases."""
         assert self.choice is not None
@@ -956,7 +907,7 @@ class _BagJob:
                     if depth_conn is not None and depth_raw is not None:
                         writer.write(depth_conn, lidar.log_time, depth_raw)
 
-            progress.start(self.reader.message_count)
+            progress.start('fusing', self.reader.message_count)
             try:
                 for connection, log_time, raw in self.messages(self.reader.connections):
                     counts['messages_read'] += 1
@@ -974,7 +925,7 @@ class _BagJob:
                     progress.advance()
                 emit(stream.finish())
             finally:
-                progress.stop()
+                progress.finish()
             written = sum(writer.counts.values())
             writer.close()
         except WriterError as err:

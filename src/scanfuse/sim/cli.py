@@ -5,10 +5,10 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING
 
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from scanfuse.config import FusionConfig
+from scanfuse.progress import RichProgress
 from scanfuse.sim.drive import scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record
@@ -90,23 +90,14 @@ def run_simulate(
         robot=robot,
     )
     controller = scripted_path(path)
-    columns = (
-        TextColumn('[bold]simulating[/] {task.description}'),
-        BarColumn(),
-        TextColumn('{task.completed:.1f}/{task.total:.0f} s'),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
+    summary = record(
+        config,
+        controller,
+        duration,
+        out,
+        snapshot=snapshot,
+        progress=RichProgress(console, unit='simulated s', transient=True),
     )
-    with Progress(*columns, console=console, transient=True) as progress:
-        task = progress.add_task(f'{world} / {path}', total=duration)
-        summary = record(
-            config,
-            controller,
-            duration,
-            out,
-            snapshot=snapshot,
-            progress=lambda now: progress.update(task, completed=now),
-        )
     console.print(summary_table(summary, snapshot))
     return summary
 

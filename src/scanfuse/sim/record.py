@@ -77,10 +77,9 @@ from scanfuse.sim.simulation import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from rosbags.interfaces import Connection
 
+    from scanfuse.progress import Progress
     from scanfuse.sim.robot import RobotSpec
 
 BASE_FRAME = 'base_link'
@@ -292,7 +291,7 @@ def record(
     out: Path,
     *,
     snapshot: Path | None = None,
-    progress: Callable[[float], None] | None = None,
+    progress: Progress | None = None,
 ) -> RecordSummary:
     """Simulate for `duration` seconds and write a ROS 2 bag to `out`.
 

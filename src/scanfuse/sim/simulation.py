@@ -42,6 +42,7 @@ import mujoco
 import numpy as np
 
 from scanfuse.config import FusionConfig
+from scanfuse.progress import NullProgress, Progress
 from scanfuse.scan import Scan
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.headless_gl import HEADLESS_BACKENDS
@@ -641,7 +642,7 @@ class Simulation:
         duration: float,
         controller: Controller | None,
         sink: Sink,
-        progress: Callable[[float], None] | None = None,
+        progress: Progress | None = None,
         *,
         stop: Callable[[], bool] | None = None,
     ) -> None:
@@ -658,6 +659,9 @@ class Simulation:
         dt = self.config.timestep
         start = self._step
         end = start + math.floor(duration / dt + 1e-6)
+        report = progress or NullProgress()
+        report.start(f'simulating {self.world.name}', duration)
+        reported = [self.time]
         events: list[tuple[int, int, int, Callable[[], None]]] = []
         order = itertools.count()
 
@@ -674,8 +678,8 @@ class Simulation:
             contacts = self.contacts()
             if contacts:
                 sink.on_contacts(self.stamp_ns, contacts)
-            if progress is not None:
-                progress(self.time)
+            report.advance(self.time - reported[0])
+            reported[0] = self.time
             at(step_of((index + 1) / self.config.state_rate), _STATE, lambda: state(index + 1))
 
         latest: list[DepthFrame] = []
@@ -727,13 +731,16 @@ class Simulation:
         at(start, _STATE, lambda: state(0))
         schedule_exposure(0)
         schedule_sweep(0)
-        while events:
-            step, _, _, action = heapq.heappop(events)
-            self.advance_to_step(step)
-            action()
-            if stop is not None and stop():
-                return
-        self.advance_to_step(end)
+        try:
+            while events:
+                step, _, _, action = heapq.heappop(events)
+                self.advance_to_step(step)
+                action()
+                if stop is not None and stop():
+                    return
+            self.advance_to_step(end)
+        finally:
+            report.finish()
 
     def close(self) -> None:
         if self._renderer is not None:
