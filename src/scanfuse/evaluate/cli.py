@@ -68,6 +68,7 @@ def run_evaluate(
     worlds: str | None,
     trials: int | None,
     console: Console,
+    jobs: int = 1,
 ) -> EvaluationResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
     from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
@@ -87,8 +88,11 @@ def run_evaluate(
             raise ConfigError(msg)
         changes['trials'] = trials
     make = EvaluationSettings.quick if quick else EvaluationSettings
+    if jobs < 1:
+        msg = f'--jobs must be 1 or more, got {jobs}'
+        raise ConfigError(msg)
     settings = make(**changes)  # type: ignore[arg-type]
-    result = run_evaluation(out, settings, RichProgress(console))
+    result = run_evaluation(out, settings, RichProgress(console), jobs=jobs)
     console.print(table(result))
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')

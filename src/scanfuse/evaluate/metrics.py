@@ -157,6 +157,23 @@ class ScanTally:
             counts.low += int(of_kind.sum())
             counts.detected += int((hit & of_kind).sum())
 
+    def merge(self, other: ScanTally) -> None:
+        """Add another tally's counts (the metrics do not depend on the order of scans)."""
+        for name in (
+            'slots',
+            'false_obstacles',
+            'low_in_view',
+            'detected_in_view',
+            'low_total',
+            'detected_total',
+        ):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        self.errors += other.errors
+        for kind, counts in other.by_kind.items():
+            mine = self.by_kind.setdefault(kind, KindCounts())
+            mine.low += counts.low
+            mine.detected += counts.detected
+
     def summary(self) -> ScanMetrics:
         errors = np.concatenate(self.errors) if self.errors else np.zeros(0)
         return ScanMetrics(

@@ -10,7 +10,9 @@ write results. All of it in real sensor time (`scanfuse.sim.simulation`).
 
 from __future__ import annotations
 
+import multiprocessing
 import shutil
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -178,6 +180,33 @@ class Snapshot:
     scans: dict[str, Scan]
 
 
+Job = tuple[int | str, str]  # (index into the trials or a turning trial's name, method)
+
+
+@dataclass
+class EvaluationPart:
+    """What one or more jobs of an evaluation measured, to merge into another `Evaluation`."""
+
+    tallies: dict[str, ScanTally]
+    world_tallies: dict[str, dict[str, ScanTally]]
+    outcomes: list[TrialOutcome]
+    maps: dict[str, MapSet]
+    snapshots: dict[str, Snapshot]
+    collision_logs: dict[str, tuple[World, DriveLog, TrialOutcome, float]]
+    crash_maps: dict[str, MapSet]
+    stream_counts: dict[str, dict[str, int]]
+
+
+def _run_job(settings: EvaluationSettings, job: Job) -> EvaluationPart:
+    """One job in a worker process, in an `Evaluation` of its own."""
+    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+
+    choose_headless_gl()
+    evaluation = Evaluation(settings)
+    evaluation.run_job(job)
+    return evaluation.part()
+
+
 class Evaluation:
     """One evaluation run; `run()` does the work, `result()` packs it up."""
 
@@ -205,20 +234,93 @@ class Evaluation:
         self.crash_maps: dict[str, MapSet] = {}
         # Per method: what its scoring streams did (scans, fused, compensated, ...).
         self.stream_counts: dict[str, dict[str, int]] = {}
+        # The trials whose maps are kept: the first ones (each trial is scored in one run).
+        self.mapped_labels = (
+            {t.label for t in self.trials[: settings.mapped_trials]}
+            if settings.closed_loop_methods
+            else set()
+        )
 
-    def run(self) -> None:
-        jobs: list[tuple[TrialSpec | TurningSpec, str]] = [
-            (t, m) for t in self.trials for m in self.settings.closed_loop_methods
+    def jobs(self) -> list[Job]:
+        """Every trial of the run in its serial order: (trial index or turning name, method)."""
+        work: list[Job] = [
+            (index, method)
+            for index in range(len(self.trials))
+            for method in self.settings.closed_loop_methods
         ]
-        jobs += [(TURNING_TRIALS[name], '') for name in self.settings.turning]
-        self.progress.start('closed-loop and turning trials', len(jobs))
-        for trial, method in jobs:
-            if isinstance(trial, TurningSpec):
-                self._turning(trial)
-            else:
-                self._trial(trial, method)
-            self.progress.advance()
+        work += [(name, '') for name in self.settings.turning]
+        return work
+
+    def run(self, jobs: int = 1) -> None:
+        """Run every trial; `jobs` > 1 runs them in that many processes.
+
+        Each process runs single trials into an `Evaluation` of its own; the parent merges
+        their parts in the serial order, so that the result is the serial run's.
+        """
+        from scanfuse.errors import ConfigError  # noqa: PLC0415
+
+        if jobs < 1:
+            msg = f'--jobs must be 1 or more, got {jobs}'
+            raise ConfigError(msg)
+        work = self.jobs()
+        self.progress.start('closed-loop and turning trials', len(work))
+        if jobs == 1 or len(work) <= 1:
+            for job in work:
+                self.run_job(job)
+                self.progress.advance()
+        else:
+            # spawn: a fresh interpreter per worker, no GL context or numba state forked.
+            context = multiprocessing.get_context('spawn')
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+                futures = [pool.submit(_run_job, self.settings, job) for job in work]
+                for _ in as_completed(futures):
+                    self.progress.advance()
+                parts = [future.result() for future in futures]
+            for part in parts:
+                self.merge(part)
         self.progress.finish()
+
+    def run_job(self, job: Job) -> None:
+        key, method = job
+        if isinstance(key, str):
+            self._turning(TURNING_TRIALS[key])
+        else:
+            self._trial(self.trials[key], method)
+
+    def part(self) -> EvaluationPart:
+        return EvaluationPart(
+            self.tallies,
+            self.world_tallies,
+            self.outcomes,
+            self.maps,
+            self.snapshots,
+            self.collision_logs,
+            self.crash_maps,
+            self.stream_counts,
+        )
+
+    def merge(self, part: EvaluationPart) -> None:
+        """Add one job's part, as if that job had run here next."""
+        for name, tally in part.tallies.items():
+            self.tallies[name].merge(tally)
+        for group, tallies in part.world_tallies.items():
+            mine = self.world_tallies.setdefault(
+                group, {name: ScanTally() for name in self.settings.methods}
+            )
+            for name, tally in tallies.items():
+                mine[name].merge(tally)
+        self.outcomes += part.outcomes
+        for label, map_set in part.maps.items():
+            if label not in self.maps and len(self.maps) < self.settings.mapped_trials:
+                self.maps[label] = map_set
+        for label, snapshot in part.snapshots.items():
+            self.snapshots.setdefault(label, snapshot)
+        self.collision_logs.update(part.collision_logs)
+        self.crash_maps.update(part.crash_maps)
+        for name, counts in part.stream_counts.items():
+            total = self.stream_counts.setdefault(name, {})
+            for key, value in counts.items():
+                total[key] = total.get(key, 0) + value
 
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
@@ -359,7 +461,7 @@ class _Scorer:
                 label,
                 _map_set(sim.world, settings, (base.min_obstacle_height, base.max_obstacle_height)),
             )
-            if mapped and len(evaluation.maps) < settings.mapped_trials
+            if mapped and label in evaluation.mapped_labels
             else None
         )
         self.front = _obstacle_front(sim.world)
@@ -469,11 +571,11 @@ def odometry_world_poses(world: World, log: DriveLog) -> list[tuple[float, float
 
 
 def run_evaluation(
-    out: Path, settings: EvaluationSettings, progress: Progress | None = None
+    out: Path, settings: EvaluationSettings, progress: Progress | None = None, jobs: int = 1
 ) -> EvaluationResult:
-    """Run the evaluation and write everything into `out`."""
+    """Run the evaluation (`jobs` trials at a time, in processes) and write it into `out`."""
     evaluation = Evaluation(settings, progress)
-    evaluation.run()
+    evaluation.run(jobs)
     first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
     reference = make_simulation(first, settings)
     try:
