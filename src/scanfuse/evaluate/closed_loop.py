@@ -1,9 +1,10 @@
 """Closed-loop trials: the robot drives to a goal behind obstacles with what a method's scan shows.
 
 The navigator knows only what a real robot knows: its wheel odometry and the
-scan the method gives it. It marks every return on a grid in the odometry
-frame, at the odometry pose of the scan's stamp (as a costmap looks the scan up in
-TF), plans with A* on that grid inflated by its radius, follows the path, and
+scan the method gives it. It keeps a Nav2-like obstacle layer (`costmap.Costmap`:
+marking, and raytrace clearing that erases what a later ray passes over) in the
+odometry frame, each scan at the odometry pose of its stamp (as a costmap looks the
+scan up in TF), plans with A* on it inflated by its radius, follows the path, and
 a stop/slow zone on the current scan guards its front. Whether it collides is
 decided by MuJoCo's contacts, whether it arrived by its true pose.
 
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanfuse.evaluate.costmap import Costmap
 from scanfuse.evaluate.mapping import GridSpec
 from scanfuse.evaluate.planner import SafetyZones, astar, disk_offsets, inflate, path_length
 from scanfuse.motion import OdometryHistory, PlanarPose
@@ -165,18 +167,17 @@ class Navigator:
     inflation_margin: float = 0.06
     lookahead: float = 0.35
     goal_tolerance: float = 0.2
-    mark_range: float = 2.5  # depth noise grows with Z^2: plan on near returns (Nav2 does too)
-    hits_to_block: int = 2
+    mark_range: float = 2.5  # the collision monitor's zones look at returns this near
     replan_every: int = 10
     zones: SafetyZones = field(init=False)
-    hits: npt.NDArray[np.int32] = field(init=False)
+    costmap: Costmap = field(init=False)
     path: list[tuple[float, float]] = field(default_factory=list)
     done: bool = False
     _steps: int = 0
 
     def __post_init__(self) -> None:
         self.zones = SafetyZones(self.radius)
-        self.hits = np.zeros((self.spec.height, self.spec.width), dtype=np.int32)
+        self.costmap = Costmap(self.spec)
 
     def step(
         self, scan: Scan, pose: Pose2D, scan_pose: Pose2D | None = None
@@ -184,7 +185,10 @@ class Navigator:
         """(v, omega) for the scan just received, with the robot at `pose` (odometry frame)
         now and at `scan_pose` (default `pose`) at the scan's stamp."""
         points = self._points_in_robot(scan)
-        self._mark(points, scan_pose or pose)
+        at = scan_pose or pose
+        c, s = math.cos(at.yaw), math.sin(at.yaw)
+        self.costmap.update(scan, at.x + c * self.lidar_x, at.y + s * self.lidar_x, at.yaw)
+        self.costmap.clear_disk(pose.x, pose.y, self.radius)
         to_goal = math.hypot(self.goal[0] - pose.x, self.goal[1] - pose.y)
         if to_goal <= self.goal_tolerance:
             self.done = True
@@ -209,7 +213,7 @@ class Navigator:
         return path_length([self._cell(x, y) for x, y in self.path], self.spec.resolution)
 
     def blocked(self) -> npt.NDArray[np.bool_]:
-        return self.hits >= self.hits_to_block
+        return self.costmap.lethal
 
     def _points_in_robot(self, scan: Scan) -> npt.NDArray[np.float64]:
         ranges = scan.ranges.astype(np.float64)
@@ -217,14 +221,6 @@ class Navigator:
         angles = scan.angles()[usable]
         near = np.maximum(ranges[usable], 0.0)
         return np.column_stack([self.lidar_x + near * np.cos(angles), near * np.sin(angles)])
-
-    def _mark(self, points: npt.NDArray[np.float64], pose: Pose2D) -> None:
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        x = pose.x + c * points[:, 0] - s * points[:, 1]
-        y = pose.y + s * points[:, 0] + c * points[:, 1]
-        column, row, inside = self.spec.cell_of(x, y)
-        cells = np.unique(row[inside] * self.spec.width + column[inside])
-        self.hits.reshape(-1)[cells] += 1
 
     def _plan(self, pose: Pose2D) -> None:
         raw = self.blocked()
