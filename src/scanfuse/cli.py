@@ -210,7 +210,7 @@ def evaluate(
         bool, typer.Option('--quick', help='small run: 2 clutter worlds, low resolution')
     ] = False,
     worlds: Annotated[
-        str | None, typer.Option(help='comma-separated: bookshelf,barricade,clutter,room')
+        str | None, typer.Option(help='comma-separated: bookshelf,barricade,clutter,room,memory')
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
     jobs: Annotated[

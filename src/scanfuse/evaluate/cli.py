@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
     from scanfuse.evaluate.results import EvaluationResult
 
-KNOWN_WORLDS = ('bookshelf', 'barricade', 'clutter', 'room')
+KNOWN_WORLDS = ('bookshelf', 'barricade', 'clutter', 'room', 'memory')
 
 
 class RichProgress:

@@ -27,12 +27,14 @@ from scanfuse.evaluate.closed_loop import (
     TurningSpec,
     drive,
     evaluation_world,
+    memory_specs,
     odom_to_world,
     trial_specs,
     turn,
     turning_world,
 )
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
+from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.mapping import (
     GridSpec,
     OccupancyGrid,
@@ -65,7 +67,7 @@ FIGURE_DISTANCE = 1.0  # metres from the robot to the obstacle's front in the sc
 class EvaluationSettings:
     """What an evaluation runs; `quick()` is the small version for tests and the demo."""
 
-    worlds: tuple[str, ...] = ('bookshelf', 'barricade', 'clutter')
+    worlds: tuple[str, ...] = ('bookshelf', 'barricade', 'clutter', 'memory')
     trials: int = 30  # seeded clutter worlds
     methods: tuple[str, ...] = tuple(METHODS)
     closed_loop_methods: tuple[str, ...] = CLOSED_LOOP_METHODS
@@ -75,6 +77,8 @@ class EvaluationSettings:
     map_resolution: float = MAP_RESOLUTION
     mapped_trials: int = 3  # first trials whose frames are mapped per method
     turning: tuple[str, ...] = tuple(TURNING_TRIALS)  # scripted turning trials
+    memory: tuple[str, ...] = tuple(MEMORY_FAMILIES)  # closed-loop memory families
+    memory_trials: int = 15  # seeded variants per memory family
     # Sensor timing (the LiDAR's rate is its profile's, odometry 50 Hz): see the report.
     lidar: str = 'rplidar-a2'
     depth_rate: float = 15.0  # Hz
@@ -86,7 +90,8 @@ class EvaluationSettings:
     def quick(cls, **changes: Any) -> EvaluationSettings:
         base = cls(
             trials=2,
-            closed_loop_methods=('lidar', 'obstacle', 'obstacle-uncompensated'),
+            closed_loop_methods=('lidar', 'obstacle', 'obstacle-no-memory'),
+            memory_trials=1,
             resolution=(256, 144),
             time_limit=20.0,
             mapped_trials=3,
@@ -217,6 +222,10 @@ class Evaluation:
             if name not in METHODS:
                 msg = f'unknown method {name!r}; choose from {", ".join(METHODS)}'
                 raise ConfigError(msg)
+        for name in settings.memory:
+            if name not in MEMORY_FAMILIES:
+                msg = f'unknown memory trial {name!r}; choose from {", ".join(MEMORY_FAMILIES)}'
+                raise ConfigError(msg)
         for name in settings.turning:
             if name not in TURNING_TRIALS:
                 msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
@@ -224,6 +233,8 @@ class Evaluation:
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
+        if 'memory' in settings.worlds:
+            self.trials += memory_specs(settings.memory, settings.memory_trials)
         self.tallies = {name: ScanTally() for name in settings.methods}
         self.world_tallies: dict[str, dict[str, ScanTally]] = {}
         self.outcomes: list[TrialOutcome] = []
@@ -452,6 +463,7 @@ class _Scorer:
             range_max=sim.lidar_profile.range_max,
             camera=camera,
             extrinsics=Extrinsics.from_config(base),
+            footprint_radius=sim.robot.body_radius,
         )
         self.group_tallies = evaluation.world_tallies.setdefault(
             group, {name: ScanTally() for name in settings.methods}
