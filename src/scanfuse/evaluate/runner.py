@@ -34,7 +34,6 @@ from scanfuse.evaluate.closed_loop import (
     turning_world,
 )
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
-from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.mapping import (
     GridSpec,
     OccupancyGrid,
@@ -42,6 +41,7 @@ from scanfuse.evaluate.mapping import (
     rasterize_footprints,
     save_map,
 )
+from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
 from scanfuse.evaluate.metrics import ScanTally
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
