@@ -61,6 +61,9 @@ class MethodResult:
     # What the method's streams did with the scored scans: scans, fused, compensated,
     # deskewed, passed (empty for `lidar`, which has no stream).
     stream: dict[str, int] = field(default_factory=dict)
+    # The memory trials alone (evaluate/memory_trials.py): their scans and closed loop.
+    scan_memory: ScanMetrics | None = None
+    closed_loop_memory: ClosedLoopSummary | None = None
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,14 @@ class EvaluationResult:
                 'recall': result.scan.recall,
                 'false_obstacle_rate': result.scan.false_obstacle_rate,
                 'median_error': result.scan.median_error,
+                'recall_near': result.scan.recall_near,
             }
+            if result.scan_memory is not None:
+                row['memory_recall_near'] = result.scan_memory.recall_near
+                row['memory_false_obstacle_rate'] = result.scan_memory.false_obstacle_rate
+            if result.closed_loop_memory is not None:
+                row['memory_trials'] = result.closed_loop_memory.trials
+                row['memory_collisions'] = result.closed_loop_memory.collisions
             if result.closed_loop is not None:
                 row['trials'] = result.closed_loop.trials
                 row['collisions'] = result.closed_loop.collisions
@@ -147,6 +157,14 @@ def _method_from_dict(data: dict[str, Any]) -> MethodResult:
         maps={k: MapAgreement(**_none_to_nan(v)) for k, v in data['maps'].items()},
         closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
         stream={str(k): int(v) for k, v in data.get('stream', {}).items()},
+        scan_memory=(
+            None if data.get('scan_memory') is None else _scan_from_dict(data['scan_memory'])
+        ),
+        closed_loop_memory=(
+            None
+            if data.get('closed_loop_memory') is None
+            else ClosedLoopSummary(**_none_to_nan(data['closed_loop_memory']))
+        ),
     )
 
 

@@ -33,6 +33,7 @@ from scanfuse.evaluate.closed_loop import (
     turn,
     turning_world,
 )
+from scanfuse.evaluate.costmap import Costmap
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
     GridSpec,
@@ -43,7 +44,7 @@ from scanfuse.evaluate.mapping import (
 )
 from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
-from scanfuse.evaluate.metrics import ScanTally
+from scanfuse.evaluate.metrics import ScanMetrics, ScanTally
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
 from scanfuse.transforms import Extrinsics
 
@@ -200,6 +201,20 @@ class EvaluationPart:
     collision_logs: dict[str, tuple[World, DriveLog, TrialOutcome, float]]
     crash_maps: dict[str, MapSet]
     stream_counts: dict[str, dict[str, int]]
+    costmaps: dict[str, CostmapSet]
+
+
+@dataclass
+class CostmapSet:
+    """The costmap figure's trial: each method's Nav2-like costmap (true poses) and the end."""
+
+    world: World
+    costmaps: dict[str, Costmap]
+    robot: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world x, y, yaw at the last scan
+
+
+COSTMAP_TRIAL = 'turn-in-place'
+COSTMAP_METHODS = ('obstacle', 'obstacle-no-memory', 'lidar')
 
 
 def _run_job(settings: EvaluationSettings, job: Job) -> EvaluationPart:
@@ -245,6 +260,8 @@ class Evaluation:
         self.crash_maps: dict[str, MapSet] = {}
         # Per method: what its scoring streams did (scans, fused, compensated, ...).
         self.stream_counts: dict[str, dict[str, int]] = {}
+        # The Nav2-like costmaps of the costmap figure's turning trial, per method.
+        self.costmaps: dict[str, CostmapSet] = {}
         # The trials whose maps are kept: the first ones (each trial is scored in one run).
         self.mapped_labels = (
             {t.label for t in self.trials[: settings.mapped_trials]}
@@ -308,6 +325,7 @@ class Evaluation:
             self.collision_logs,
             self.crash_maps,
             self.stream_counts,
+            self.costmaps,
         )
 
     def merge(self, part: EvaluationPart) -> None:
@@ -328,6 +346,7 @@ class Evaluation:
             self.snapshots.setdefault(label, snapshot)
         self.collision_logs.update(part.collision_logs)
         self.crash_maps.update(part.crash_maps)
+        self.costmaps.update(part.costmaps)
         for name, counts in part.stream_counts.items():
             total = self.stream_counts.setdefault(name, {})
             for key, value in counts.items():
@@ -422,12 +441,30 @@ class Evaluation:
                 maps=maps,
                 closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
                 stream=dict(self.stream_counts.get(name, {})),
+                scan_memory=self._memory_scan(name),
+                closed_loop_memory=(
+                    ClosedLoopSummary.of(memory) if (memory := _memory_outcomes(outcomes)) else None
+                ),
             )
         settings = {
             key: list(value) if isinstance(value, tuple) else value
             for key, value in asdict(self.settings).items()
         }
         return EvaluationResult(settings, methods, list(self.outcomes), files)
+
+    def _memory_scan(self, name: str) -> ScanMetrics | None:
+        """Scan metrics over the memory trials' scans (None: no memory trial was run)."""
+        groups = [g for g in self.world_tallies if g in MEMORY_FAMILIES]
+        if not groups:
+            return None
+        tally = ScanTally()
+        for group in groups:
+            tally.merge(self.world_tallies[group][name])
+        return tally.summary()
+
+
+def _memory_outcomes(outcomes: list[TrialOutcome]) -> list[TrialOutcome]:
+    return [o for o in outcomes if o.trial.rsplit('-', 1)[0] in MEMORY_FAMILIES]
 
 
 class _Scorer:
@@ -477,6 +514,16 @@ class _Scorer:
             else None
         )
         self.front = _obstacle_front(sim.world)
+        self.costmaps = None
+        if label == COSTMAP_TRIAL:
+            spec = GridSpec.covering(sim.world.bounds, 0.05, margin=0.3)
+            self.costmaps = evaluation.costmaps.setdefault(
+                label,
+                CostmapSet(
+                    sim.world,
+                    {name: Costmap(spec) for name in COSTMAP_METHODS if name in settings.methods},
+                ),
+            )
 
     def add(self, stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         name = self._names.get(stream)
@@ -496,6 +543,10 @@ class _Scorer:
             self.group_tallies[name].add(scan.ranges, truth)
             if self.maps is not None:
                 self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
+            if self.costmaps is not None and name in self.costmaps.costmaps:
+                self.costmaps.costmaps[name].update(scan, *frame.origin[:2], frame.pose.yaw)
+        if self.costmaps is not None:
+            self.costmaps.robot = (frame.pose.x, frame.pose.y, frame.pose.yaw)
         front = self.front
         wanted = front is not None and self.label not in evaluation.snapshots
         if front is not None and wanted and front - frame.pose.x <= FIGURE_DISTANCE:
