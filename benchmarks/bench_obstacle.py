@@ -2,7 +2,8 @@
 
 Per size: the scan of a uint16 frame (one core), its ratio to `np.count_nonzero` on the
 same image (one memory-bound pass: the floor), float32 metres input, the numpy reference,
-the row method over the full image height; in a fresh interpreter (both cores) the
+the row method over the full image height, drop-off detection on against off (the
+pipeline's default is on; issue 15's budget is 1.10); in a fresh interpreter (both cores) the
 2-thread mode against one thread in the same process, and the start-up: import with the
 kernels loaded from numba's cache, then each size's per-camera tables and first frame.
 
@@ -16,9 +17,11 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +29,8 @@ import numpy as np
 
 from benchmarks import scenes
 from benchmarks.common import Row, median_seconds
-from scanfuse.convert.obstacle import ObstacleProjector
+from scanfuse.config import FusionConfig
+from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
 from scanfuse.convert.row import row_scan
 
 SECTION = 'obstacle'
@@ -88,6 +92,25 @@ def _child(frames: int = 201) -> dict[str, Any]:
     return result
 
 
+_CONFIG = FusionConfig()
+DROPS = DropLimits(_CONFIG.drop_min_depth, _CONFIG.drop_min_width, _CONFIG.depth_noise)
+
+
+def _drops_on_off(camera: Any, depth: np.ndarray, repeat: int = 51) -> tuple[float, float]:
+    """Median seconds of a scan with drops on and off, batches interleaved (same load)."""
+    on = ObstacleProjector(camera, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS, drops=DROPS)
+    off = ObstacleProjector(camera, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS)
+    number = max(1, round(0.01 / median_seconds(lambda: off.scan(depth), repeat=3)))
+    samples: dict[int, list[float]] = {0: [], 1: []}
+    for _ in range(repeat):
+        for index, projector in enumerate((off, on)):
+            start = time.perf_counter()
+            for _ in range(number):
+                projector.scan(depth)
+            samples[index].append((time.perf_counter() - start) / number)
+    return statistics.median(samples[1]), statistics.median(samples[0])
+
+
 def run() -> list[Row]:
     rows = []
     child = _child()
@@ -131,6 +154,16 @@ def run() -> list[Row]:
                 threaded['tables'] + threaded['first_scan'],
                 f'tables {threaded["tables"] * 1e3:.0f} ms, '
                 f'first scan {threaded["first_scan"] * 1e3:.1f} ms',
+            )
+        )
+        with_drops, without = _drops_on_off(camera, millimetres)
+        rows.append(
+            Row(
+                SECTION,
+                f'obstacle {size} drops on',
+                with_drops,
+                f'/ drops off = {with_drops / without:.3f} (off {without * 1e3:.2f} ms; '
+                'target <= 1.10)',
             )
         )
         flat = millimetres.ravel()

@@ -75,7 +75,7 @@ def demo(
     ),
 ) -> None:
     """Run scanfuse on the embedded default and write a report with figures."""
-    from scanfuse.demo import run_demo  # noqa: PLC0415
+    from scanfuse.app.demo import run_demo  # noqa: PLC0415
 
     run_demo(out, console=Console())
 
@@ -172,17 +172,35 @@ def simulate(
     snapshot: Annotated[
         Path | None, typer.Option(help='PNG of the world from above with the first scans')
     ] = None,
-    lidar_height: Annotated[float, typer.Option(help='LiDAR height above the floor, m')] = 0.30,
-    camera_height: Annotated[float, typer.Option(help='camera height above the floor, m')] = 0.45,
-    camera_pitch: Annotated[float, typer.Option(help='camera pitch, degrees down')] = 20.0,
+    params: Annotated[
+        Path | None,
+        typer.Option(help='scanfuse parameter file: the sensors are mounted as it says'),
+    ] = None,
+    lidar_height: Annotated[
+        float | None, typer.Option(help='LiDAR height above the floor, m')
+    ] = None,
+    camera_height: Annotated[
+        float | None, typer.Option(help='camera height above the floor, m')
+    ] = None,
+    camera_pitch: Annotated[
+        float | None, typer.Option(help='camera pitch, radians, positive looks down')
+    ] = None,
 ) -> None:
-    """Simulate a robot in an indoor world and record its sensors and ground truth as a bag."""
-    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+    """Simulate a robot in an indoor world and record its sensors and ground truth as a bag.
+
+    The mounting comes from --params (the same file the node and `scanfuse bag` read), then
+    the flags; radians throughout.
+    """
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     if depth_backend != 'multiray':
         choose_headless_gl()
-    from scanfuse.sim.cli import run_simulate  # noqa: PLC0415
+    from scanfuse.sim.cli import mounting_from_params, run_simulate  # noqa: PLC0415
 
+    mounting = mounting_from_params(params) if params is not None else {}
+    flags = {'lidar_height': lidar_height, 'camera_height': camera_height}
+    flags['camera_pitch'] = camera_pitch
+    mounting.update({name: value for name, value in flags.items() if value is not None})
     with terminate_as_interrupt():
         run_simulate(
             out=out,
@@ -198,7 +216,7 @@ def simulate(
             noise=not no_noise,
             depth_backend=depth_backend,
             snapshot=snapshot,
-            mounting=(lidar_height, camera_height, camera_pitch),
+            mounting=mounting,
             console=Console(),
         )
 

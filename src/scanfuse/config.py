@@ -141,6 +141,45 @@ class FusionConfig(BaseModel):
             "numba's OpenMP workers wait for a core"
         ),
     )
+    detect_drops: bool = Field(
+        default=True,
+        description=(
+            'obstacle method: stairs going down, ledges and holes in the floor are obstacles '
+            'at the range where the line of sight crosses the floor; missing returns (0, NaN) '
+            'are never drops'
+        ),
+    )
+    drop_min_depth: float = Field(
+        0.05,
+        gt=0.0,
+        le=MAX_MOUNTING_OFFSET,
+        allow_inf_nan=False,
+        description=(
+            'obstacle method: metres below the floor plane a depth point must lie to be a '
+            'drop-off (keep it above the error of the floor plane from the mounting)'
+        ),
+    )
+    drop_min_width: float = Field(
+        0.0,
+        ge=0.0,
+        le=MAX_MOUNTING_OFFSET,
+        allow_inf_nan=False,
+        description=(
+            'obstacle method: metres the line of sight must run below the floor beyond its '
+            'edge for a drop-off; holes and gaps shorter than this along it (a gap the wheels '
+            'roll over) are ignored; 0: every drop counts'
+        ),
+    )
+    depth_noise: float = Field(
+        0.01,
+        ge=0.0,
+        le=1.0,
+        allow_inf_nan=False,
+        description=(
+            'depth camera noise: sigma = depth_noise * Z^2 metres (1/m; RealSense D435 about '
+            '0.01); a drop-off needs a reading 6 sigma behind the floor'
+        ),
+    )
     camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_y: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_height: float = _metres(0.45, 'camera height above the floor, metres')

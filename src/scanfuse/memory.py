@@ -12,14 +12,15 @@ newest seen there, exact coordinates kept), so its size is bounded by constructi
 robot, older than `max_age`, or when the camera looks at its place again and sees it
 free. Only the camera clears: the LiDAR's plane passes over low obstacles by design.
 
-Clearing (per depth frame fused): each remembered point is tried at a few heights of the
-collision slab (the obstacle's height is not kept). A height is *seen free* when it
-projects into the image, within the camera's range, and the pixel's depth lies beyond it
-by more than the noise; *seen occupied* when the depth is near it; *hidden* when the depth
-is shorter (something in front) or the pixel has no depth. A point is cleared when its
-lowest height is seen free and no height is seen occupied: a low obstacle stands on the
-floor, so the camera seeing the floor spot through the slab's bottom means it is gone; a
-point hidden behind a nearer obstacle is kept (occlusion).
+Clearing (per depth frame fused): the memory holds, for every place, what the camera saw
+the last time it looked there. A remembered point whose whole slab column (a few heights:
+the obstacle's own height is not kept) projects into the image within the camera's range,
+its bottom onto a pixel with depth, none showing something nearer in front of it, has been
+looked at:
+it is forgotten, and what the camera sees there now (the depth scan, added right after)
+takes its place. So a thing that went away is gone within one frame, noisy samples of one
+surface never pile up (the nearest of many would be biased short), and a point hidden
+behind a nearer obstacle, or partly outside the image (too close, below the view), is kept.
 """
 
 from __future__ import annotations
@@ -319,14 +320,19 @@ def _clear_loop(
     range_max: float,
     margin: Any,
 ) -> int:
-    """`ObstacleMemory.clear_seen` one point at a time; the count of points forgotten."""
+    """`ObstacleMemory.clear_seen` one point at a time; the count of points forgotten.
+
+    A point is looked at when every height of its slab column projects into the image
+    within the range limits, its bottom onto a pixel with depth (higher ones may see out
+    over nothing), and no pixel shows something in front of it (hidden: nearer than the
+    point by more than the noise).
+    """
     rows, columns = depth.shape
     cleared = 0
     for i in range(keys.size):
         if keys[i] < 0:
             continue
-        free_low = False
-        occupied = False
+        looked_at = True
         for rank in range(heights.size):
             wx = xs[i] - origin[0]
             wy = ys[i] - origin[1]
@@ -336,7 +342,8 @@ def _clear_loop(
             oy = rotation[0, 1] * wx + rotation[1, 1] * wy + rotation[2, 1] * wz
             z = rotation[0, 2] * wx + rotation[1, 2] * wy + rotation[2, 2] * wz
             if not range_min <= z <= range_max:
-                continue
+                looked_at = False
+                break
             xn = ox / z
             yn = oy / z
             r2 = xn * xn + yn * yn
@@ -348,17 +355,19 @@ def _clear_loop(
             u = round(fx * xd + cx)
             v = round(fy * yd + cy)
             if not (0 <= u < columns and 0 <= v < rows):
-                continue
+                looked_at = False
+                break
             measured = depth[v, u] * scale
-            if not measured > 0.0:  # no return (0 or NaN): no information
-                continue
-            allowed = margin[0] + margin[1] * z + margin[2] * z * z
-            if measured > z + allowed:
+            if not measured > 0.0:
+                # No return: the bottom must be seen; higher up it may look out over nothing.
                 if rank == 0:
-                    free_low = True
-            elif measured >= z - allowed:
-                occupied = True
-        if free_low and not occupied:
+                    looked_at = False
+                    break
+                continue
+            if measured < z - margin[0] - margin[1] * z - margin[2] * z * z:  # hidden
+                looked_at = False
+                break
+        if looked_at:
             keys[i] = -1
             cleared += 1
     return cleared

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
-from scanfuse.convert.obstacle import ObstacleProjector
+from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import InputError
 from scanfuse.fuse.merge import merge_scans
@@ -147,6 +147,15 @@ class FusionPipeline:
             if self.config.floor_guard and not self.config.d2l_compat
             else None
         )
+        self._drops = (
+            DropLimits(
+                min_depth=self.config.drop_min_depth,
+                min_width=self.config.drop_min_width,
+                noise=self.config.depth_noise,
+            )
+            if self.config.detect_drops
+            else None
+        )
         self._plans: GridCache[None, Plan] = GridCache(PLAN_CACHE_SIZE)
         self._projectors: GridCache[tuple[CameraModel, Extrinsics], ObstacleProjector] = GridCache(
             PROJECTOR_CACHE_SIZE
@@ -247,6 +256,7 @@ class FusionPipeline:
                 min_points=self.config.obstacle_min_points,
                 cluster_spread=self.config.obstacle_cluster_spread,
                 threads=self.config.obstacle_threads,
+                drops=self._drops,
             )
             self._projectors.put((camera, extrinsics), (grid,), projector)
         return projector

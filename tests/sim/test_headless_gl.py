@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from scanfuse.headless_gl import choose_headless_gl, probe, probe_output
+from scanfuse.sim.headless_gl import choose_headless_gl, probe, probe_output
 
 
 def test_mujoco_imports_and_steps_in_a_child_process():
@@ -47,10 +47,23 @@ def test_nothing_changes_once_mujoco_is_imported():
     script = (
         'import os, mujoco\n'
         'os.environ.pop("MUJOCO_GL", None)\n'
-        'from scanfuse.headless_gl import choose_headless_gl\n'
+        'from scanfuse.sim.headless_gl import choose_headless_gl\n'
         'print(choose_headless_gl(), os.environ.get("MUJOCO_GL"))\n'
     )
     env_out = subprocess.run(
         [sys.executable, '-c', script], capture_output=True, text=True, check=True
     ).stdout
     assert env_out.split() == ['None', 'None']
+
+
+def test_importing_the_gl_choice_does_not_import_mujoco():
+    # MuJoCo reads MUJOCO_GL once, at its import: choosing must come first.
+    script = (
+        'import sys\n'
+        'from scanfuse.sim.headless_gl import choose_headless_gl\n'
+        'print("mujoco" in sys.modules)\n'
+    )
+    out = subprocess.run(
+        [sys.executable, '-c', script], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.split() == ['False']

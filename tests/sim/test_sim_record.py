@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -255,7 +256,7 @@ def test_cli_mounting_options_reach_the_recorded_tf(tmp_path):
         [
             'simulate', '--world', 'room', '--path', 'rotate', '--duration', '0.2',
             '--out', str(out), '--resolution', '256x144', '--depth-rate', '5',
-            '--lidar-height', '0.2', '--camera-height', '0.6', '--camera-pitch', '30',
+            '--lidar-height', '0.2', '--camera-height', '0.6', '--camera-pitch', '0.5236',
         ]
     )  # fmt: skip
     assert code == 0
@@ -264,5 +265,27 @@ def test_cli_mounting_options_reach_the_recorded_tf(tmp_path):
     assert store.lookup('base_link', 'laser')[2, 3] == pytest.approx(0.2)
     optical = store.lookup('base_link', 'camera_depth_optical_frame')
     assert optical[2, 3] == pytest.approx(0.6)
-    pitch = math.radians(30.0)
+    pitch = 0.5236  # radians, as the parameter files
     assert optical[:3, 2] == pytest.approx([math.cos(pitch), 0.0, -math.sin(pitch)])
+
+
+def test_the_parameter_file_mounts_the_simulated_sensors_and_flags_override_it(tmp_path):
+    params = tmp_path / 'robot.yaml'
+    values = {'camera_height': 0.52, 'camera_pitch': 0.3, 'camera_x': 0.2, 'lidar_height': 0.25}
+    params.write_text(yaml.safe_dump({'scanfuse': {'ros__parameters': values}}))
+    out = tmp_path / 'params.mcap'
+    code = main(
+        [
+            'simulate', '--world', 'room', '--path', 'rotate', '--duration', '0.2',
+            '--out', str(out), '--resolution', '256x144', '--depth-rate', '5',
+            '--params', str(params), '--lidar-height', '0.35',
+        ]
+    )  # fmt: skip
+    assert code == 0
+    store = TransformStore()
+    store.add_all(transforms_from_msg(read_all(out)['/tf_static'][0]), static=True)
+    assert store.lookup('base_link', 'laser')[2, 3] == pytest.approx(0.35)  # the flag wins
+    optical = store.lookup('base_link', 'camera_depth_optical_frame')
+    assert optical[0, 3] == pytest.approx(0.2)
+    assert optical[2, 3] == pytest.approx(0.52)
+    assert optical[:3, 2] == pytest.approx([math.cos(0.3), 0.0, -math.sin(0.3)])

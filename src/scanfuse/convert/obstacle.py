@@ -29,6 +29,34 @@ so the height test and the range limits on Z together become one interval
 lo <= Z <= hi per pixel, and per frame only two compares per pixel remain, plus
 two multiply-adds, a slot lookup and an insertion into the slot's k nearest for the
 pixels that pass.
+
+Drop-offs (`detect_drops`: stairs going down, ledges, holes in the floor; issue 15). A
+pixel whose ray goes down (a_z < 0) would see the floor at Z0 = -b_z / a_z. A depth
+beyond Z0 + margin puts its point below the floor, where the robot cannot drive: such
+a pixel reports not its own point but the point where its line of sight crosses the
+floor plane (x, y at Z0, per pixel in the tables), as the near edge of the drop is no
+farther than that, so the robot stops before the edge. The margin is the largest of
+
+- drop_min_depth / -a_z: the point lies more than `drop_min_depth` below the floor
+  (this also absorbs errors of the floor plane: a mounting 2 cm off moves the floor by
+  2 cm);
+- drop_min_width / h, h the horizontal distance the ray travels per unit of Z: the ray
+  runs at least `drop_min_width` beyond the floor's edge, so a hole or gap shorter than
+  that along the line of sight (a round hole narrower than it, always) is ignored;
+- DROP_NOISE_SIGMAS * depth_noise * Z0^2: the camera's noise (sigma = depth_noise Z^2)
+  cannot carry a reading of the floor itself that far (6 sigma: about 1e-9 of the
+  readings of a Gaussian floor), so flat floors give no drops.
+
+Z0 must lie within [range_min, range_max] (the floor would be seen there); the reading
+itself may lie beyond range_max (a deep drop seen from above), but must be a finite
+measurement: missing returns (0, NaN: black or shiny floors, out of range, REP-118 +Inf)
+are never drops, as a camera loses the floor that way without any drop-off. A mirror or
+a glossy floor reflecting the room behind the floor plane does read as a drop.
+
+Drop points go into their own k nearest per slot: a slot is a drop when it holds at
+least `min_points` of them (so isolated noisy pixels never make one) and then reports
+the nearest crossing (noise-free: the geometry of the pixel, not its depth), unless the
+slab's estimate of the slot is nearer.
 """
 
 from __future__ import annotations
@@ -66,6 +94,14 @@ UINT16_MAX = 65535
 FINEST_INCREMENT = 16.0 / (1 << 18)
 # Most threads `ObstacleProjector` splits a frame over.
 MAX_THREADS = 64
+# A drop needs a reading this many noise sigmas (depth_noise Z0^2) behind the floor: a
+# Gaussian floor reading goes this far once in 1e9 (and a slot needs min_points of them).
+DROP_NOISE_SIGMAS = 6.0
+# The upper end of every drop interval: any finite reading (uint16 has no infinity).
+_DROP_TOP = {
+    np.dtype(np.uint16): np.uint16(np.iinfo(np.uint16).max),
+    np.dtype(np.float32): np.finfo(np.float32).max,
+}
 
 
 def _pseudo_angle(x: F64, y: F64) -> F64:
@@ -188,10 +224,26 @@ def _nearest_squared_numpy(
     motion: tuple[np.float32, np.float32, np.float32, np.float32],
     lookup: SlotLookup,
     nearest: F32,
+    drops: tuple[npt.NDArray[Any], Any, F32] | None,
 ) -> None:
-    """The reference (and the fallback without numba): the same reduction, vectorised."""
-    keep = np.flatnonzero((depth >= lo) & (depth <= hi))
-    z = depth[keep].astype(np.float32)
+    """The reference (and the fallback without numba): the same reduction, vectorised.
+
+    `drops` are the start of the drop interval per pixel, its end (one for all: the
+    largest finite depth) and the floor crossing depth Z0 per pixel (NaN where the pixel
+    cannot see a drop); `nearest` has 2 x slots rows: the slab's points, then the drops'.
+    """
+    with np.errstate(invalid='ignore'):
+        in_slab = (depth >= lo) & (depth <= hi)
+    if drops is None:
+        drop = np.zeros(depth.shape, dtype=np.bool_)
+        floor: F32 = np.zeros(depth.shape, dtype=np.float32)
+    else:
+        drop_lo, top, floor = drops
+        with np.errstate(invalid='ignore'):
+            drop = (depth >= drop_lo) & (depth <= top) & ~in_slab
+    keep = np.flatnonzero(in_slab | drop)
+    is_drop = drop[keep]
+    z = np.where(is_drop, floor[keep], depth[keep].astype(np.float32))
     x_seen = a_x[keep] * z + b_x
     y_seen = a_y[keep] * z + b_y
     m_cos, m_sin, m_tx, m_ty = motion
@@ -200,7 +252,22 @@ def _nearest_squared_numpy(
     slot = lookup.slots(x.astype(np.float64), y.astype(np.float64))
     inside = slot >= 0
     squared = (x * x + y * y)[inside]
-    nearest[:] = _smallest_per_slot(slot[inside], squared, *nearest.shape)
+    count = nearest.shape[0] // 2
+    row = slot[inside] + np.int32(count) * is_drop[inside].astype(np.int32)
+    nearest[:] = _smallest_per_slot(row, squared, *nearest.shape)
+
+
+def _pick(nearest: F32, spread: float, best: F32, drops: Mask) -> None:
+    """`best` per slot from `nearest` (2 x slots rows: slab points, then drop points).
+
+    The slab's estimate (`_cluster_range_squared`), or the nearest drop crossing where the
+    slot holds at least k drop points and it is nearer (then `drops` is True).
+    """
+    count, k = best.size, nearest.shape[1]
+    slab = _cluster_range_squared(nearest[:count], spread)
+    drop_first, drop_kth = nearest[count:, 0], nearest[count:, k - 1]
+    drops[:] = (drop_kth < np.inf) & (drop_first < slab)
+    best[:] = np.where(drops, drop_first, slab)
 
 
 def _smallest_per_slot(slot: npt.NDArray[np.int32], squared: F32, count: int, k: int) -> F32:
@@ -265,6 +332,49 @@ def _depth_interval(
     lo[no_ray] = np.inf
     hi[no_ray] = -np.inf
     return lo, hi
+
+
+@dataclass(frozen=True)
+class DropLimits:
+    """When a depth reading is a drop-off (see the module docstring); None: no drops."""
+
+    min_depth: float  # metres below the floor plane
+    min_width: float  # metres the line of sight runs beyond the floor's edge
+    noise: float  # depth noise sigma = noise * Z^2 (1/m)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.min_depth) and self.min_depth > 0.0):
+            msg = (
+                f'drop_min_depth must be positive and finite (metres below the floor a point '
+                f'must lie to be a drop-off), got {self.min_depth}'
+            )
+            raise InputError(msg)
+        for name, value in (('drop_min_width', self.min_width), ('depth_noise', self.noise)):
+            if not (math.isfinite(value) and value >= 0.0):
+                msg = f'{name} must be finite and at least 0, got {value}'
+                raise InputError(msg)
+
+
+def _drop_interval(
+    a_z: F64, b_z: float, horizontal: F64, limits: DropLimits, range_min: float, range_max: float
+) -> tuple[F64, F64, F64]:
+    """Per pixel the depths [lo, hi] that are drop-offs and the floor crossing depth Z0.
+
+    `horizontal` is the horizontal distance the pixel's point moves per unit of Z.
+    lo > hi (and Z0 NaN) where the pixel cannot see a drop: its ray does not go down, or
+    meets the floor outside the range limits.
+    """
+    with np.errstate(divide='ignore', invalid='ignore'):
+        floor = -b_z / a_z
+        possible = (a_z < -_LEVEL_RAY) & (floor >= range_min) & (floor <= range_max)
+        below = limits.min_depth / -a_z
+        beyond = np.where(limits.min_width > 0.0, limits.min_width / horizontal, 0.0)
+    noise = DROP_NOISE_SIGMAS * limits.noise * floor * floor
+    margin = np.maximum(np.maximum(below, beyond), noise)
+    possible &= np.isfinite(margin)
+    lo = np.where(possible, floor + margin, np.inf)
+    hi = np.where(possible, np.inf, -np.inf)
+    return lo, hi, np.where(possible, floor, np.nan)
 
 
 def _millimetre_interval(lo: F64, hi: F64) -> tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint16]]:
@@ -449,6 +559,7 @@ class ObstacleProjector:
     `threads` > 1 splits each frame's columns over that many threads (numba's thread
     pool); the scan is the same. The compiled kernel is `obstacle_kernel`; this module's
     numpy reduction (`reference=True`, or without numba) is its reference.
+    `drops` (a `DropLimits`) also reports drop-offs (see the module docstring); None: off.
     """
 
     def __init__(
@@ -465,6 +576,7 @@ class ObstacleProjector:
         cluster_spread: float = math.inf,
         use_kernel: bool = True,
         threads: int = 1,
+        drops: DropLimits | None = None,
     ) -> None:
         _check_limits(min_obstacle_height, max_obstacle_height, range_min, range_max)
         if not 1 <= threads <= MAX_THREADS:
@@ -487,6 +599,7 @@ class ObstacleProjector:
         self.grid = lidar_grid
         self.range_min = float(range_min)
         self.range_max = float(range_max)
+        self.drops = drops
         self._kernel = _KERNEL if use_kernel else None
 
         shape = (camera.height, camera.width)
@@ -494,23 +607,21 @@ class ObstacleProjector:
         tile = ViewCoverage.tile_for(shape)
         turn = TWO_PI / abs(lidar_grid.angle_increment)
         x_table, y_table = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
-        height_row = extrinsics.base_to_camera_optical.rotation_matrix[2]
+        base_rotation = extrinsics.base_to_camera_optical.rotation_matrix
+        height_row = base_rotation[2]
         b_z = extrinsics.base_to_camera_optical.translation[2]
         laser = extrinsics.laser_to_camera_optical
         rotation = laser.rotation_matrix
         b_x, b_y = laser.translation[0], laser.translation[1]
         self._b = (np.float32(b_x), np.float32(b_y))
-        self._metres = (
-            np.empty(pixels, dtype=np.float32),
-            np.empty(pixels, dtype=np.float32),
-            np.empty(pixels, dtype=np.float32),
-            np.empty(pixels, dtype=np.float32),
+        # lo, hi, a_x, a_y, then where the drop interval starts (it ends at the largest
+        # finite depth, `_DROP_TOP`) and the floor crossing depth Z0 (NaN: cannot see drops).
+        self._metres: tuple[npt.NDArray[Any], ...] = tuple(
+            np.empty(pixels, dtype=np.float32) for _ in range(6)
         )
-        self._millimetres = (
-            np.empty(pixels, dtype=np.uint16),
-            np.empty(pixels, dtype=np.uint16),
-            np.empty(pixels, dtype=np.float32),
-            np.empty(pixels, dtype=np.float32),
+        u16, f32 = np.uint16, np.float32
+        self._millimetres: tuple[npt.NDArray[Any], ...] = tuple(
+            np.empty(pixels, dtype=dtype) for dtype in (u16, u16, f32, f32, u16, f32)
         )
         typical = np.empty(shape[0])
         tile_arcs: list[tuple[F64, F64]] = []
@@ -534,19 +645,38 @@ class ObstacleProjector:
                 range_min=range_min,
                 range_max=range_max,
             )
+            if drops is None:
+                drop_lo = np.full(a_z.shape, np.inf)
+                drop_hi, floor = -drop_lo, np.full(a_z.shape, np.nan)
+            else:
+                horizontal = np.hypot(
+                    base_rotation[0, 0] * x_n + base_rotation[0, 1] * y_n + base_rotation[0, 2],
+                    base_rotation[1, 0] * x_n + base_rotation[1, 1] * y_n + base_rotation[1, 2],
+                )
+                drop_lo, drop_hi, floor = _drop_interval(
+                    a_z, b_z, horizontal, drops, self.range_min, self.range_max
+                )
             with np.errstate(invalid='ignore'):
-                sees_slab = np.where(lo <= hi, 1.0, np.nan)
-            near = ((a_x * lo + b_x) * sees_slab, (a_y * lo + b_y) * sees_slab)
-            far = ((a_x * hi + b_x) * sees_slab, (a_y * hi + b_y) * sees_slab)
+                sees_slab = lo <= hi
+                # A pixel that can see a drop sees up to its floor crossing.
+                sees_drop = drop_lo <= drop_hi
+                sight = np.where(sees_slab | sees_drop, 1.0, np.nan)
+            near_z = np.where(sees_slab, lo, floor)
+            far_z = np.where(sees_drop, floor, hi)
+            near = ((a_x * near_z + b_x) * sight, (a_y * near_z + b_y) * sight)
+            far = ((a_x * far_z + b_x) * sight, (a_y * far_z + b_y) * sight)
             first, last = _pixel_arcs(near, far, lidar_grid)
             tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
-            for table, values in zip(self._metres, (lo, hi, a_x, a_y), strict=True):
+            metres = (lo, hi, a_x, a_y, drop_lo, floor)
+            for table, values in zip(self._metres, metres, strict=True):
                 table[part] = values
             lo_mm, hi_mm = _millimetre_interval(lo, hi)
-            self._millimetres[0][part] = lo_mm
-            self._millimetres[1][part] = hi_mm
-            self._millimetres[2][part] = a_x * MILLIMETRE
-            self._millimetres[3][part] = a_y * MILLIMETRE
+            millimetres: tuple[npt.NDArray[Any], ...] = (
+                *(lo_mm, hi_mm, a_x * MILLIMETRE, a_y * MILLIMETRE),
+                *(_millimetre_interval(drop_lo, drop_hi)[0], floor / MILLIMETRE),
+            )
+            for table, values in zip(self._millimetres, millimetres, strict=True):
+                table[part] = values
             typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
         self.coverage = ViewCoverage.from_tile_arcs(
             np.concatenate([arcs[0] for arcs in tile_arcs]),
@@ -558,7 +688,9 @@ class ObstacleProjector:
         self.in_view = self.coverage.in_view
 
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
-        self._nearest = np.empty((lidar_grid.count, self.min_points), dtype=np.float32)
+        self._drop_slots = np.zeros(lidar_grid.count, dtype=np.bool_)
+        # Rows of the slab's points per slot, then rows of the drops' points.
+        self._nearest = np.empty((2 * lidar_grid.count, self.min_points), dtype=np.float32)
         limits_mm = _millimetre_interval(np.array([range_min]), np.array([range_max]))
         self._millimetre_limits = (int(limits_mm[0][0]), int(limits_mm[1][0]))
         self.lookup = SlotLookup.for_grid(lidar_grid)
@@ -568,11 +700,14 @@ class ObstacleProjector:
         block = self._kernel.BLOCK if self._kernel is not None else camera.width
         self._bands = _column_bands(camera.width, self.threads, block)
         self._block_extremes = {
-            np.dtype(np.uint16): _block_extremes(*self._millimetres[:2], shape, self._bands, block),
-            np.dtype(np.float32): _block_extremes(*self._metres[:2], shape, self._bands, block),
+            np.dtype(tables[0].dtype): (
+                *_block_extremes(tables[0], tables[1], shape, self._bands, block),
+                _block_extremes(tables[4], tables[4], shape, self._bands, block)[0],
+            )
+            for tables in (self._millimetres, self._metres)
         }
         self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
-        self._bound = np.empty((self.threads, self.lookup.first.size), dtype=np.float32)
+        self._bound = np.empty((self.threads, 2 * self.lookup.first.size), dtype=np.float32)
         self._warm_up()
 
     def _seen(self, depth: npt.NDArray[Any]) -> Mask:
@@ -603,6 +738,12 @@ class ObstacleProjector:
             return (centres >= self.range_min) & (centres <= self.range_max)
 
     @property
+    def drop_slots(self) -> Mask:
+        """The slots whose reading in the last frame is a drop-off's edge (a copy)."""
+        slots: Mask = self._drop_slots.copy()
+        return slots
+
+    @property
     def uses_kernel(self) -> bool:
         """True when frames go through the compiled numba kernel."""
         return self._kernel is not None
@@ -623,9 +764,10 @@ class ObstacleProjector:
         reference: bool = False,
         motion: PlanarMotion = IDENTITY_MOTION,
     ) -> F32:
-        """Per slot the k-th smallest squared horizontal range (Inf: fewer than k points).
+        """Per slot the reported squared horizontal range (Inf: fewer than k points).
 
-        k is `min_points`.
+        k is `min_points`: of the slot's k nearest slab points the farthest within
+        `cluster_spread` r^2 of the nearest, or its nearest drop crossing (`drop_slots`).
 
         `depth` is the flattened image, uint16 millimetres or float32 metres.
         `reference=True` runs the numpy version whatever the kernel.
@@ -638,29 +780,35 @@ class ObstacleProjector:
                 f'values, got shape {depth.shape} of {depth.dtype}; scan() takes the image'
             )
             raise InputError(msg)
-        lo, hi, a_x, a_y = self._millimetres if depth.dtype == np.uint16 else self._metres
+        tables = self._millimetres if depth.dtype == np.uint16 else self._metres
+        lo, hi, a_x, a_y, drop_lo, floor = tables
+        top = _DROP_TOP[depth.dtype]
         b_x, b_y = self._b
         moved = _motion32(motion)
         lookup = self.lookup
         kernel = self._kernel
         if kernel is None or reference:
-            _nearest_squared_numpy(depth, lo, hi, a_x, a_y, b_x, b_y, moved, lookup, self._nearest)
-            self._best[:] = _cluster_range_squared(self._nearest, self.cluster_spread)
+            _nearest_squared_numpy(
+                depth, lo, hi, a_x, a_y, b_x, b_y, moved, lookup, self._nearest,
+                None if self.drops is None else (drop_lo, top, floor),
+            )  # fmt: skip
+            _pick(self._nearest, self.cluster_spread, self._best, self._drop_slots)
             return self._best
         depth = np.ascontiguousarray(depth)
-        tables = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
-        least, greatest = self._block_extremes[depth.dtype]
+        slots = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
+        extremes = (*self._block_extremes[depth.dtype], self.drops is not None)
         if self.threads == 1:
             kernel.nearest_squared(
-                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
-                least, greatest, *tables, lookup.after, self.cluster_spread, self._nearest,
-                self._bound[0], self._best,
+                depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
+                self.camera.width, *extremes, *slots, lookup.after, self.cluster_spread,
+                self._nearest, self._bound[0], self._best, self._drop_slots,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
-                depth, lo, hi, a_x, a_y, b_x, b_y, *moved, self._rows, self.camera.width,
-                self._bands, least, greatest, *tables, lookup.after, self.cluster_spread,
-                self._part_nearest, self._bound, self._best,
+                depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
+                self.camera.width, self._bands, *extremes, *slots, lookup.after,
+                self.cluster_spread, self._part_nearest, self._bound, self._best,
+                self._drop_slots,
             )  # fmt: skip
             self._nearest[:] = self._part_nearest[0]
         return self._best
@@ -823,6 +971,7 @@ def obstacle_scan(
     range_max: float,
     min_points: int = 1,
     cluster_spread: float = math.inf,
+    drops: DropLimits | None = None,
 ) -> Scan:
     """One-off obstacle scan; build an `ObstacleProjector` to convert many frames."""
     projector = ObstacleProjector(
@@ -835,5 +984,6 @@ def obstacle_scan(
         range_max=range_max,
         min_points=min_points,
         cluster_spread=cluster_spread,
+        drops=drops,
     )
     return projector.scan(depth)

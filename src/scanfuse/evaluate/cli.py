@@ -71,7 +71,7 @@ def run_evaluate(
     jobs: int = 1,
 ) -> EvaluationResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
-    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
     choose_headless_gl()

@@ -1,33 +1,96 @@
-"""MuJoCo simulation of the paper's indoor worlds: robot, sensors, ground truth, bags."""
+"""MuJoCo simulation of the paper's indoor worlds: robot, sensors, ground truth, bags.
 
-from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
-from scanfuse.sim.errors import SimError
-from scanfuse.sim.record import RecordSummary, record, static_transforms
-from scanfuse.sim.robot import RobotSpec, WheelOdometry
-from scanfuse.sim.sensors import (
-    CAMERAS,
-    LIDARS,
-    CameraProfile,
-    DepthBackend,
-    DepthNoise,
-    LidarNoise,
-    LidarProfile,
-)
-from scanfuse.sim.simulation import (
-    Contact,
-    Controller,
-    DepthFrame,
-    LidarFrame,
-    Observation,
-    SimConfig,
-    Simulation,
-    StateSample,
-    Trace,
-    fusion_config,
-)
-from scanfuse.sim.snapshot import save_snapshot
-from scanfuse.sim.truth import TruthScanner
-from scanfuse.sim.worlds import KINDS, WORLDS, Obstacle, Pose2D, World, make_world
+Names are imported on first use (PEP 562): importing `scanfuse.sim.headless_gl` must not
+import MuJoCo, which reads MUJOCO_GL once, at its own import.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
+    from scanfuse.sim.errors import SimError
+    from scanfuse.sim.record import RecordSummary, record, static_transforms
+    from scanfuse.sim.robot import RobotSpec, WheelOdometry
+    from scanfuse.sim.sensors import (
+        CAMERAS,
+        LIDARS,
+        CameraProfile,
+        DepthBackend,
+        DepthNoise,
+        LidarNoise,
+        LidarProfile,
+    )
+    from scanfuse.sim.simulation import (
+        Contact,
+        Controller,
+        DepthFrame,
+        LidarFrame,
+        Observation,
+        SimConfig,
+        Simulation,
+        StateSample,
+        Trace,
+        fusion_config,
+    )
+    from scanfuse.sim.snapshot import save_snapshot
+    from scanfuse.sim.truth import TruthScanner
+    from scanfuse.sim.worlds import KINDS, WORLDS, Obstacle, Pose2D, World, make_world
+
+
+_WHERE = {
+    'Arc': 'drive',
+    'CAMERAS': 'sensors',
+    'CameraProfile': 'sensors',
+    'Contact': 'simulation',
+    'Controller': 'simulation',
+    'DepthBackend': 'sensors',
+    'DepthFrame': 'simulation',
+    'DepthNoise': 'sensors',
+    'FusedController': 'drive',
+    'KINDS': 'worlds',
+    'LIDARS': 'sensors',
+    'Lap': 'drive',
+    'LidarFrame': 'simulation',
+    'LidarNoise': 'sensors',
+    'LidarProfile': 'sensors',
+    'Observation': 'simulation',
+    'Obstacle': 'worlds',
+    'PATHS': 'drive',
+    'Pose2D': 'worlds',
+    'RecordSummary': 'record',
+    'RobotSpec': 'robot',
+    'Rotate': 'drive',
+    'SimConfig': 'simulation',
+    'SimError': 'errors',
+    'Simulation': 'simulation',
+    'StateSample': 'simulation',
+    'Straight': 'drive',
+    'Trace': 'simulation',
+    'TruthScanner': 'truth',
+    'WORLDS': 'worlds',
+    'WheelOdometry': 'robot',
+    'World': 'worlds',
+    'fusion_config': 'simulation',
+    'make_world': 'worlds',
+    'record': 'record',
+    'save_snapshot': 'snapshot',
+    'scripted_path': 'drive',
+    'static_transforms': 'record',
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        msg = f'module {__name__!r} has no attribute {name!r}'
+        raise AttributeError(msg)
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     'CAMERAS',

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 import re
 from typing import TYPE_CHECKING
 
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from scanfuse.config import FusionConfig
 from scanfuse.sim.drive import scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record
@@ -40,6 +40,23 @@ def parse_backend(text: str) -> DepthBackend:
         raise SimError(msg) from None
 
 
+# RobotSpec's sensor poses and the FusionConfig parameters that describe them.
+MOUNTING_PARAMETERS = {
+    'lidar_x': 'lidar_x',
+    'lidar_height': 'lidar_height',
+    'lidar_yaw': 'lidar_yaw',
+    'camera_x': 'camera_x',
+    'camera_height': 'camera_height',
+    'camera_pitch': 'camera_pitch',
+}
+
+
+def mounting_from_params(path: Path) -> dict[str, float]:
+    """The simulated robot's sensor poses from a scanfuse parameter file (metres, radians)."""
+    config = FusionConfig.from_ros_params(path)
+    return {spec: float(getattr(config, name)) for spec, name in MOUNTING_PARAMETERS.items()}
+
+
 def run_simulate(
     *,
     out: Path,
@@ -55,16 +72,11 @@ def run_simulate(
     depth_backend: str,
     snapshot: Path | None,
     console: Console,
-    mounting: tuple[float, float, float] = (0.30, 0.45, 20.0),
+    mounting: dict[str, float] | None = None,
     depth_latency: float = 0.040,
 ) -> RecordSummary:
-    """Record one run; `mounting` is (LiDAR height m, camera height m, camera pitch degrees)."""
-    lidar_height, camera_height, camera_pitch = mounting
-    robot = RobotSpec(
-        lidar_height=lidar_height,
-        camera_height=camera_height,
-        camera_pitch=math.radians(camera_pitch),
-    )
+    """Record one run; `mounting` changes RobotSpec's sensor poses (metres, radians)."""
+    robot = RobotSpec(**(mounting or {}))
     config = SimConfig(
         world=world,
         seed=seed,

@@ -38,9 +38,9 @@ import mujoco
 import numpy as np
 
 from scanfuse.config import FusionConfig
-from scanfuse.headless_gl import HEADLESS_BACKENDS
 from scanfuse.scan import Scan
 from scanfuse.sim.errors import SimError
+from scanfuse.sim.headless_gl import HEADLESS_BACKENDS
 from scanfuse.sim.robot import ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
 from scanfuse.sim.sensors import (
     LASER_FRAME,

@@ -199,7 +199,7 @@ def record_demo_bag(out: Path, console: Console) -> Path:
 
 def run_demo(out: Path, console: Console) -> Path:
     """The whole demo into `out`; returns the evaluation report's path."""
-    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     choose_headless_gl()  # before MuJoCo is imported: rendered depth where GL works
     from scanfuse.evaluate.cli import RichProgress  # noqa: PLC0415
