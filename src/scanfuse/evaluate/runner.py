@@ -219,7 +219,7 @@ COSTMAP_METHODS = ('obstacle', 'obstacle-no-memory', 'lidar')
 
 def _run_job(settings: EvaluationSettings, job: Job) -> EvaluationPart:
     """One job in a worker process, in an `Evaluation` of its own."""
-    from scanfuse.headless_gl import choose_headless_gl  # noqa: PLC0415
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     choose_headless_gl()
     evaluation = Evaluation(settings)
