@@ -230,14 +230,19 @@ def evaluate(
     ] = False,
     worlds: Annotated[
         str | None,
-        typer.Option(help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole'),
+        typer.Option(
+            help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole,memory'
+        ),
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
+    jobs: Annotated[
+        int, typer.Option('--jobs', help='trials run in parallel processes (results as serial)')
+    ] = 1,
 ) -> None:
     """Measure every method: scan metrics, maps, closed-loop collisions; write a report."""
     from scanfuse.evaluate.cli import run_evaluate  # noqa: PLC0415
 
-    run_evaluate(out, quick=quick, worlds=worlds, trials=trials, console=Console())
+    run_evaluate(out, quick=quick, worlds=worlds, trials=trials, console=Console(), jobs=jobs)
 
 
 @app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})

@@ -178,6 +178,7 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     assert (out / 'maps' / 'barricade-0_obstacle.yaml').is_file()
     assert (out / 'maps_barricade-0_lidar_run.png').is_file()
     assert (out / 'map_after_collision_barricade-0.png').is_file()
+    assert (out / 'costmap_turn-in-place.png').is_file()
     result = EvaluationResult.load(out / 'results.json')
     # NaN is stored as null and read back as NaN: a second round trip is the same text.
     assert EvaluationResult.from_json(result.to_json()).to_json() == result.to_json()
@@ -220,6 +221,11 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     assert compensated_turn.false_obstacle_rate < 0.005
     assert uncompensated_turn.false_obstacle_rate > 0.02
     assert compensated_turn.median_error < uncompensated_turn.median_error
+    # Turning in place the camera's 87 degrees pass each box once a turn; with memory the
+    # boxes stay in the scan out of view, so more low slots near the footprint are held.
+    memory_turn = result.methods['obstacle'].scan_by_world['turn-in-place']
+    assert memory_turn.low_slots_near == compensated_turn.low_slots_near > 0
+    assert memory_turn.recall_near > compensated_turn.recall_near
 
 
 def test_unknown_turning_trial_is_refused():

@@ -8,6 +8,9 @@ from scanfuse.errors import ConfigError
 from scanfuse.progress import RichProgress
 from scanfuse.sim.worlds import WORLDS
 
+# The simulator's worlds, and `memory`: the memory trials (evaluate/memory_trials.py).
+EVALUATION_WORLDS = (*WORLDS, 'memory')
+
 if TYPE_CHECKING:
     from pathlib import Path
 
@@ -20,10 +23,10 @@ def parse_worlds(worlds: str | None) -> tuple[str, ...] | None:
     if worlds is None:
         return None
     names = tuple(name.strip() for name in worlds.split(',') if name.strip())
-    unknown = [name for name in names if name not in WORLDS]
+    unknown = [name for name in names if name not in EVALUATION_WORLDS]
     if unknown or not names:
         given = ', '.join(unknown) or '(none given)'
-        msg = f'unknown world(s) {given}; choose from {", ".join(WORLDS)}'
+        msg = f'unknown world(s) {given}; choose from {", ".join(EVALUATION_WORLDS)}'
         raise ConfigError(msg)
     return names
 
@@ -35,6 +38,7 @@ def run_evaluate(
     worlds: str | None,
     trials: int | None,
     console: Console,
+    jobs: int = 1,
 ) -> EvaluationResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
@@ -55,8 +59,11 @@ def run_evaluate(
             raise ConfigError(msg)
         changes['trials'] = trials
     make = EvaluationSettings.quick if quick else EvaluationSettings
+    if jobs < 1:
+        msg = f'--jobs must be 1 or more, got {jobs}'
+        raise ConfigError(msg)
     settings = make(**changes)  # type: ignore[arg-type]
-    result = run_evaluation(out, settings, RichProgress(console))
+    result = run_evaluation(out, settings, RichProgress(console), jobs=jobs)
     console.print(table(result))
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')

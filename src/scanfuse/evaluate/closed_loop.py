@@ -1,9 +1,10 @@
 """Closed-loop trials: the robot drives to a goal behind obstacles with what a method's scan shows.
 
 The navigator knows only what a real robot knows: its wheel odometry and the
-scan the method gives it. It marks every return on a grid in the odometry
-frame, at the odometry pose of the scan's stamp (as a costmap looks the scan up in
-TF), plans with A* on that grid inflated by its radius, follows the path, and
+scan the method gives it. It keeps a Nav2-like obstacle layer (`costmap.Costmap`:
+marking, and raytrace clearing that erases what a later ray passes over) in the
+odometry frame, each scan at the odometry pose of its stamp (as a costmap looks the
+scan up in TF), plans with A* on it inflated by its radius, follows the path, and
 a stop/slow zone on the current scan guards its front. Whether it collides is
 decided by MuJoCo's contacts, whether it fell by its base leaving the floor plane
 (`Simulation.check_fall`), whether it arrived by its true pose.
@@ -24,7 +25,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanfuse.evaluate.costmap import Costmap
 from scanfuse.evaluate.mapping import GridSpec
+from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES, memory_trial
 from scanfuse.evaluate.planner import SafetyZones, astar, disk_offsets, inflate, path_length
 from scanfuse.motion import OdometryHistory, PlanarPose
 from scanfuse.sim.drive import Arc, Rotate
@@ -69,6 +72,12 @@ class TrialSpec:
     seed: int
     goal: tuple[float, float]
     time_limit: float = 45.0  # simulated seconds
+    waypoints: tuple[tuple[float, float], ...] = ()  # passed in order before the goal
+
+    @property
+    def memory(self) -> bool:
+        """A trial where obstacle memory matters (`memory_trials`)."""
+        return self.world in MEMORY_FAMILIES
 
     @property
     def label(self) -> str:
@@ -97,7 +106,10 @@ def evaluation_world(name: str, seed: int) -> World:
 
     The simulator's bookshelf world leaves 0.5 m behind the shelf, too narrow for
     the robot to reach a goal there, so the goal could not lie "behind" the boards.
+    The memory families are `memory_trials`' worlds.
     """
+    if name in MEMORY_FAMILIES:
+        return memory_trial(name, seed).world
     if name != 'bookshelf':
         return make_world(name, seed)
     bounds = (SMALL_ROOM[0], SHELF_DISTANCE + ROOM_BEHIND_SHELF, SMALL_ROOM[2], SMALL_ROOM[3])
@@ -149,6 +161,19 @@ def trial_specs(worlds: list[str], clutter_trials: int, time_limit: float) -> li
     return specs
 
 
+MEMORY_TIME_LIMIT = 40.0  # simulated seconds: the shelf's round trip is about 6 m
+
+
+def memory_specs(families: Sequence[str], variants: int) -> list[TrialSpec]:
+    """`variants` seeded trials of each memory family, family by family."""
+    specs = []
+    for name in families:
+        for seed in range(variants):
+            trial = memory_trial(name, seed)
+            specs.append(TrialSpec(name, seed, trial.goal, MEMORY_TIME_LIMIT, trial.waypoints))
+    return specs
+
+
 def world_to_odom(start: Pose2D, x: float, y: float) -> tuple[float, float]:
     """A world point in the odometry frame, which starts at the robot's start pose."""
     c, s = math.cos(start.yaw), math.sin(start.yaw)
@@ -171,23 +196,25 @@ class Navigator:
     goal: tuple[float, float]  # odometry frame
     radius: float
     lidar_x: float = 0.0
+    waypoints: list[tuple[float, float]] = field(default_factory=list)  # odometry frame
+    waypoint_tolerance: float = 0.3
     max_speed: float = 0.35
     max_turn: float = 1.2
     inflation_margin: float = 0.06
+    clear_margin: float = 0.16  # > stop zone (0.08) + a cell's half diagonal (0.035)
     lookahead: float = 0.35
     goal_tolerance: float = 0.2
-    mark_range: float = 2.5  # depth noise grows with Z^2: plan on near returns (Nav2 does too)
-    hits_to_block: int = 2
+    mark_range: float = 2.5  # the collision monitor's zones look at returns this near
     replan_every: int = 10
     zones: SafetyZones = field(init=False)
-    hits: npt.NDArray[np.int32] = field(init=False)
+    costmap: Costmap = field(init=False)
     path: list[tuple[float, float]] = field(default_factory=list)
     done: bool = False
     _steps: int = 0
 
     def __post_init__(self) -> None:
         self.zones = SafetyZones(self.radius)
-        self.hits = np.zeros((self.spec.height, self.spec.width), dtype=np.int32)
+        self.costmap = Costmap(self.spec)
 
     def step(
         self, scan: Scan, pose: Pose2D, scan_pose: Pose2D | None = None
@@ -195,9 +222,19 @@ class Navigator:
         """(v, omega) for the scan just received, with the robot at `pose` (odometry frame)
         now and at `scan_pose` (default `pose`) at the scan's stamp."""
         points = self._points_in_robot(scan)
-        self._mark(points, scan_pose or pose)
-        to_goal = math.hypot(self.goal[0] - pose.x, self.goal[1] - pose.y)
-        if to_goal <= self.goal_tolerance:
+        at = scan_pose or pose
+        c, s = math.cos(at.yaw), math.sin(at.yaw)
+        self.costmap.update(scan, at.x + c * self.lidar_x, at.y + s * self.lidar_x, at.yaw)
+        self.costmap.clear_disk(pose.x, pose.y, self.radius)
+        if self.waypoints and (
+            math.hypot(self.waypoints[0][0] - pose.x, self.waypoints[0][1] - pose.y)
+            <= self.waypoint_tolerance
+        ):
+            self.waypoints.pop(0)
+            self.path = []
+        heading = self.target()
+        to_goal = math.hypot(heading[0] - pose.x, heading[1] - pose.y)
+        if to_goal <= self.goal_tolerance and not self.waypoints:
             self.done = True
             return 0.0, 0.0
         if not self.path or self._steps % self.replan_every == 0 or self._path_blocked():
@@ -210,8 +247,13 @@ class Navigator:
         error = math.atan2(math.sin(error), math.cos(error))
         omega = max(-self.max_turn, min(self.max_turn, 2.0 * error))
         v = self.max_speed * max(0.0, math.cos(error)) ** 4 if abs(error) < 0.8 else 0.0
-        v = min(v, 0.8 * to_goal + 0.05)
+        if not self.waypoints:
+            v = min(v, 0.8 * to_goal + 0.05)
         return self.zones.limit(v, points), omega
+
+    def target(self) -> tuple[float, float]:
+        """Where the robot is heading: the next waypoint, or the goal."""
+        return self.waypoints[0] if self.waypoints else self.goal
 
     def planned_length(self) -> float:
         """Length of the current plan, metres (NaN: no plan)."""
@@ -220,7 +262,7 @@ class Navigator:
         return path_length([self._cell(x, y) for x, y in self.path], self.spec.resolution)
 
     def blocked(self) -> npt.NDArray[np.bool_]:
-        return self.hits >= self.hits_to_block
+        return self.costmap.lethal
 
     def _points_in_robot(self, scan: Scan) -> npt.NDArray[np.float64]:
         ranges = scan.ranges.astype(np.float64)
@@ -229,17 +271,18 @@ class Navigator:
         near = np.maximum(ranges[usable], 0.0)
         return np.column_stack([self.lidar_x + near * np.cos(angles), near * np.sin(angles)])
 
-    def _mark(self, points: npt.NDArray[np.float64], pose: Pose2D) -> None:
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        x = pose.x + c * points[:, 0] - s * points[:, 1]
-        y = pose.y + s * points[:, 0] + c * points[:, 1]
-        column, row, inside = self.spec.cell_of(x, y)
-        cells = np.unique(row[inside] * self.spec.width + column[inside])
-        self.hits.reshape(-1)[cells] += 1
-
     def _plan(self, pose: Pose2D) -> None:
+        # A path kept clear of the stop zone first (as Nav2's inflation cost keeps plans off
+        # obstacles): a plan that grazes an obstacle has the zone stop the robot on it for
+        # good. Only where none exists, the tight one.
+        for margin in (self.clear_margin, self.inflation_margin):
+            self._plan_with(pose, margin)
+            if self.path:
+                return
+
+    def _plan_with(self, pose: Pose2D, margin: float) -> None:
         raw = self.blocked()
-        reach = (self.radius + self.inflation_margin) / self.spec.resolution
+        reach = (self.radius + margin) / self.spec.resolution
         blocked = inflate(raw, reach)
         start = self._cell(pose.x, pose.y)
         # The robot may stand inside the inflation (it cut a corner): let the plan lead it
@@ -255,7 +298,7 @@ class Navigator:
 
     def _free_goal(self, blocked: npt.NDArray[np.bool_]) -> tuple[int, int] | None:
         """The goal cell, or the free cell nearest to it within the goal tolerance."""
-        goal = self._cell(*self.goal)
+        goal = self._cell(*self.target())
         if not blocked[goal]:
             return goal
         reach = math.ceil(self.goal_tolerance / self.spec.resolution)
@@ -411,7 +454,13 @@ def drive(
     corners = [world_to_odom(world.start, x, y) for x in bounds[:2] for y in bounds[2:]]
     xs, ys = zip(*corners, strict=True)
     spec = GridSpec.covering((min(xs), max(xs), min(ys), max(ys)), 0.05, margin=0.3)
-    navigator = Navigator(spec, goal, sim.robot.body_radius, lidar_x=sim.robot.lidar_x)
+    navigator = Navigator(
+        spec,
+        goal,
+        sim.robot.body_radius,
+        lidar_x=sim.robot.lidar_x,
+        waypoints=[world_to_odom(world.start, *point) for point in trial.waypoints],
+    )
 
     def released(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         if on_scan is not None:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scanfuse.evaluate.metrics import SlotTruth
+from scanfuse.evaluate.metrics import SlotTruth, near_footprint_slots
 from scanfuse.sim.truth import TruthScanner
 
 if TYPE_CHECKING:
@@ -44,6 +44,7 @@ class SlotTruthBuilder:
         extrinsics: Extrinsics,
         view_range: float = VIEW_RANGE,
         drops: tuple[Drop, ...] = (),
+        footprint_radius: float | None = None,
     ) -> None:
         self.grid = grid
         lidar_height = extrinsics.base_to_laser.translation[2]
@@ -90,6 +91,10 @@ class SlotTruthBuilder:
         self._camera_in_laser = np.asarray(extrinsics.laser_to_camera_optical.translation)
         self._lidar_height = lidar_height
         self._lidar_yaw = extrinsics.base_to_laser.rpy()[2]
+        # The round footprint about the base's origin, in the LiDAR's frame (all-around recall).
+        self.footprint_radius = footprint_radius
+        base_in_laser = extrinsics.base_to_laser.inverse().translation
+        self._base_in_laser = (float(base_in_laser[0]), float(base_in_laser[1]))
 
     def per_obstacle(self, x: float, y: float, yaw: float) -> npt.NDArray[np.float32]:
         """(obstacles, slots) truth ranges of each obstacle on its own."""
@@ -115,7 +120,15 @@ class SlotTruthBuilder:
             else np.full(count, np.inf, dtype=np.float32)
         )
         in_view = found & self._visible(truth, self._tops[index])
-        return SlotTruth(truth.astype(np.float32), plane, self._kinds[index], in_view)
+        truth = truth.astype(np.float32)
+        near = (
+            None
+            if self.footprint_radius is None
+            else near_footprint_slots(
+                truth, self.grid.angles(), self._base_in_laser, self.footprint_radius
+            )
+        )
+        return SlotTruth(truth, plane, self._kinds[index], in_view, near)
 
     def _visible(
         self, ranges: npt.NDArray[np.float32], tops: npt.NDArray[np.float64]

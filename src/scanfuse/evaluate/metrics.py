@@ -9,6 +9,9 @@ than the tolerance: something the LiDAR cannot see is in the robot's way.
   range is within tolerance of the truth or shorter;
 - false obstacle rate: share of all slots where the fused range is shorter
   than the truth by more than the tolerance (floor, phantom edges, noise);
+- all-around recall: share of low-obstacle slots whose true point lies within 1.0 m
+  of the robot's footprint, in every direction (in the camera's view or not): what
+  the obstacle memory is for;
 - range error: |fused - truth| of detected low-obstacle slots.
 
 REP-117 readings compare naturally: NaN (no information) never detects and is
@@ -33,6 +36,7 @@ if TYPE_CHECKING:
 
 TOLERANCE_ABSOLUTE = 0.05  # metres
 TOLERANCE_RELATIVE = 0.02  # share of the true range
+ALL_AROUND_REACH = 1.0  # metres from the footprint's edge (DESIGN.md "All-around recall")
 
 
 @dataclass(frozen=True)
@@ -93,22 +97,46 @@ def false_obstacle_slots(fused: F32, truth: F32, tolerance: Tolerance = Toleranc
     return short
 
 
+def near_footprint_slots(
+    truth: F32,
+    angles: npt.NDArray[np.float64],
+    centre: tuple[float, float],
+    radius: float,
+    reach: float = ALL_AROUND_REACH,
+) -> Mask:
+    """Slots whose true point lies within `reach` of a round footprint (LiDAR frame).
+
+    The footprint is the disc of `radius` about `centre` (the base's centre in the
+    LiDAR's frame); a slot's true point is `truth` along its angle from the LiDAR.
+    """
+    _check_shapes(truth=truth, angles=angles)
+    finite = np.isfinite(truth)
+    ranges = np.where(finite, truth, 0.0).astype(np.float64)
+    gap = np.hypot(ranges * np.cos(angles) - centre[0], ranges * np.sin(angles) - centre[1])
+    near: Mask = finite & (gap - radius <= reach)
+    return near
+
+
 @dataclass(frozen=True)
 class SlotTruth:
     """Ground truth of one scan, per slot.
 
     `kinds[i]` names the obstacle kind nearest in slot i ('' where nothing is in
     range); `in_view` marks the slots the camera can see (the evaluation's
-    recall counts only those).
+    recall counts only those); `near` the slots whose true point lies within
+    `ALL_AROUND_REACH` of the robot's footprint (None: not known, counted nowhere).
     """
 
     truth: F32
     plane: F32
     kinds: npt.NDArray[np.str_]
     in_view: Mask
+    near: Mask | None = None
 
     def __post_init__(self) -> None:
         _check_shapes(truth=self.truth, plane=self.plane, kinds=self.kinds, in_view=self.in_view)
+        if self.near is not None:
+            _check_shapes(truth=self.truth, near=self.near)
 
 
 @dataclass
@@ -134,6 +162,8 @@ class ScanTally:
     detected_in_view: int = 0
     low_total: int = 0
     detected_total: int = 0
+    low_near: int = 0
+    detected_near: int = 0
     errors: list[npt.NDArray[np.float64]] = field(default_factory=list)
     by_kind: dict[str, KindCounts] = field(default_factory=dict)
 
@@ -149,6 +179,9 @@ class ScanTally:
         self.detected_total += int(hit.sum())
         self.low_in_view += int(counted.sum())
         self.detected_in_view += int((hit & counted).sum())
+        if truth.near is not None:
+            self.low_near += int((low & truth.near).sum())
+            self.detected_near += int((hit & truth.near).sum())
         finite_hit = hit & counted & np.isfinite(fused)
         self.errors.append(np.abs(fused[finite_hit].astype(np.float64) - truth.truth[finite_hit]))
         for kind in np.unique(truth.kinds[counted]):
@@ -156,6 +189,25 @@ class ScanTally:
             counts = self.by_kind.setdefault(str(kind), KindCounts())
             counts.low += int(of_kind.sum())
             counts.detected += int((hit & of_kind).sum())
+
+    def merge(self, other: ScanTally) -> None:
+        """Add another tally's counts (the metrics do not depend on the order of scans)."""
+        for name in (
+            'slots',
+            'false_obstacles',
+            'low_in_view',
+            'detected_in_view',
+            'low_total',
+            'detected_total',
+            'low_near',
+            'detected_near',
+        ):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        self.errors += other.errors
+        for kind, counts in other.by_kind.items():
+            mine = self.by_kind.setdefault(kind, KindCounts())
+            mine.low += counts.low
+            mine.detected += counts.detected
 
     def summary(self) -> ScanMetrics:
         errors = np.concatenate(self.errors) if self.errors else np.zeros(0)
@@ -169,6 +221,8 @@ class ScanTally:
             p95_error=float(np.percentile(errors, 95)) if errors.size else float('nan'),
             recall_by_kind={kind: counts.recall for kind, counts in sorted(self.by_kind.items())},
             low_slots_by_kind={kind: counts.low for kind, counts in sorted(self.by_kind.items())},
+            low_slots_near=self.low_near,
+            recall_near=_ratio(self.detected_near, self.low_near),
         )
 
 
@@ -189,6 +243,8 @@ class ScanMetrics:
     p95_error: float
     recall_by_kind: dict[str, float]
     low_slots_by_kind: dict[str, int]
+    low_slots_near: int = 0  # low-obstacle slots within 1 m of the footprint, any direction
+    recall_near: float = float('nan')  # all-around recall of those
 
 
 def scan_metrics(fused: F32, truth: SlotTruth, tolerance: Tolerance = Tolerance()) -> ScanMetrics:

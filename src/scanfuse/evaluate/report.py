@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from scanfuse.evaluate.results import EvaluationResult
-    from scanfuse.evaluate.runner import Evaluation, MapSet
+    from scanfuse.evaluate.runner import CostmapSet, Evaluation, MapSet
     from scanfuse.sim.worlds import World
 
 MAPS_NOTE = (
@@ -57,6 +57,7 @@ def headline_rows(result: EvaluationResult) -> list[list[str]]:
             [
                 name,
                 _fmt(method.scan.recall),
+                _fmt(method.scan.recall_near),
                 _percent(method.scan.false_obstacle_rate),
                 _fmt(method.scan.median_error),
                 f'{loop.collisions}/{loop.trials}' if loop else '-',
@@ -70,6 +71,7 @@ def headline_rows(result: EvaluationResult) -> list[list[str]]:
 HEADERS = [
     'method',
     'recall (low, in view <= 3 m)',
+    'all-around recall (low, <= 1 m of footprint)',
     'false obstacles (% of slots)',
     'median error (m)',
     'collisions',
@@ -121,6 +123,52 @@ def timing_note(settings: dict[str, Any]) -> str:
         'stamp, the instant a compensated scan describes: a raw sweep of a turning robot, '
         'or a depth frame fused without compensation, is scored against that instant too.'
     )
+
+
+MEMORY_NOTE = (
+    'Memory trials (`memory-turn`, `memory-slalom`, `memory-shelf`, `memory-deadend`; seeded '
+    'variants): low boxes (5-15 cm, under the LiDAR plane) beside and behind the robot while '
+    'it turns in place, weaves, turns back past a shelf or backs out of a dead end. The '
+    'navigator keeps a Nav2-like obstacle layer on the scan it drives with (inf_is_valid, '
+    'marking to 2.5 m, raytrace clearing to 3.0 m, footprint clearing: '
+    'examples/nav2_scanfuse.yaml), so a low obstacle the scan stops showing is cleared by '
+    'the next ray over it, as Nav2 would. All-around recall: low-obstacle slots whose true '
+    "point lies within 1.0 m of the robot's footprint, in every direction. Targets for "
+    '`obstacle` (with memory): all-around recall >= 0.95, false obstacles <= 0.5 % of slots, '
+    'no collisions in these trials.'
+)
+
+
+def memory_section(result: EvaluationResult) -> list[str]:
+    """The memory trials: closed loop and scan metrics per method."""
+    rows = []
+    for name, method in result.methods.items():
+        scan, loop = method.scan_memory, method.closed_loop_memory
+        if scan is None:
+            continue
+        rows.append(
+            [
+                name,
+                f'{loop.collisions}/{loop.trials}' if loop else '-',
+                f'{loop.reached}/{loop.trials}' if loop else '-',
+                _fmt(scan.recall_near),
+                str(scan.low_slots_near),
+                _fmt(scan.recall),
+                _percent(scan.false_obstacle_rate),
+            ]
+        )
+    if not rows:
+        return []
+    headers = [
+        'method',
+        'collisions',
+        'goals reached',
+        'all-around recall (<= 1 m)',
+        'low slots near',
+        'recall in view',
+        'false obstacles',
+    ]
+    return ['## Memory trials', '', MEMORY_NOTE, '', _markdown_table(headers, rows), '']
 
 
 def markdown(result: EvaluationResult) -> str:
@@ -261,6 +309,7 @@ def markdown(result: EvaluationResult) -> str:
         for label, a in m.maps.items()
     ]
     parts += [_markdown_table(['method', 'trial', 'precision', 'recall', 'IoU'], rows), '']
+    parts += memory_section(result)
     parts += ['## Closed-loop trials', '']
     rows = [
         [
@@ -309,11 +358,31 @@ def write_figures(evaluation: Evaluation, out: Path) -> list[str]:
             ).name
         )
     files.append(_bars_figure(evaluation, out).name)
+    for label, costmaps in evaluation.costmaps.items():
+        files.append(_costmap_figure(label, costmaps, out).name)
     for label, entry in evaluation.collision_logs.items():
         if entry[2].collided:
             files.append(_collision_figure(label, entry, out).name)
             break
     return files
+
+
+def _costmap_figure(label: str, entry: CostmapSet, out: Path) -> Path:
+    from scanfuse.evaluate.costmap_figure import costmaps_figure  # noqa: PLC0415
+
+    names = {
+        'obstacle': 'obstacle (memory on)',
+        'obstacle-no-memory': 'obstacle-no-memory',
+        'lidar': 'lidar',
+    }
+    panels = [(names.get(name, name), costmap) for name, costmap in entry.costmaps.items()]
+    return costmaps_figure(
+        panels,
+        entry.world.obstacles,
+        (*entry.robot, 0.18),
+        f'{label}: Nav2-like costmap (true poses) after the turn, per scan the robot was given',
+        out / f'costmap_{label}.png',
+    )
 
 
 def _view(

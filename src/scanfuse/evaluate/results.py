@@ -72,6 +72,10 @@ class MethodResult:
     def false_drop_rate(self) -> float:
         return self.false_drop_slots / self.drop_free_slots if self.drop_free_slots else math.nan
 
+    # The memory trials alone (evaluate/memory_trials.py): their scans and closed loop.
+    scan_memory: ScanMetrics | None = None
+    closed_loop_memory: ClosedLoopSummary | None = None
+
 
 @dataclass(frozen=True)
 class EvaluationResult:
@@ -91,7 +95,14 @@ class EvaluationResult:
                 'recall': result.scan.recall,
                 'false_obstacle_rate': result.scan.false_obstacle_rate,
                 'median_error': result.scan.median_error,
+                'recall_near': result.scan.recall_near,
             }
+            if result.scan_memory is not None:
+                row['memory_recall_near'] = result.scan_memory.recall_near
+                row['memory_false_obstacle_rate'] = result.scan_memory.false_obstacle_rate
+            if result.closed_loop_memory is not None:
+                row['memory_trials'] = result.closed_loop_memory.trials
+                row['memory_collisions'] = result.closed_loop_memory.collisions
             if result.closed_loop is not None:
                 row['trials'] = result.closed_loop.trials
                 row['collisions'] = result.closed_loop.collisions
@@ -160,6 +171,14 @@ def _method_from_dict(data: dict[str, Any]) -> MethodResult:
         stream={str(k): int(v) for k, v in data.get('stream', {}).items()},
         drop_free_slots=int(data.get('drop_free_slots', 0)),
         false_drop_slots=int(data.get('false_drop_slots', 0)),
+        scan_memory=(
+            None if data.get('scan_memory') is None else _scan_from_dict(data['scan_memory'])
+        ),
+        closed_loop_memory=(
+            None
+            if data.get('closed_loop_memory') is None
+            else ClosedLoopSummary(**_none_to_nan(data['closed_loop_memory']))
+        ),
     )
 
 

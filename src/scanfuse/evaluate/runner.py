@@ -10,6 +10,8 @@ write results. All of it in real sensor time (`scanfuse.sim.simulation`).
 
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -22,11 +24,13 @@ from scanfuse.evaluate.closed_loop import (
     TurningSpec,
     drive,
     evaluation_world,
+    memory_specs,
     odom_to_world,
     trial_specs,
     turn,
     turning_world,
 )
+from scanfuse.evaluate.costmap import Costmap
 from scanfuse.evaluate.drops import DropTally, false_drop_slots, reports_drops
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
@@ -35,8 +39,9 @@ from scanfuse.evaluate.mapping import (
     compare_maps,
     rasterize_footprints,
 )
+from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
-from scanfuse.evaluate.metrics import ScanTally
+from scanfuse.evaluate.metrics import ScanMetrics, ScanTally
 from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
 from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics
@@ -60,7 +65,15 @@ FIGURE_DISTANCE = 1.0  # metres from the robot to the obstacle's front in the sc
 class EvaluationSettings:
     """What an evaluation runs; `quick()` is the small version for tests and the demo."""
 
-    worlds: tuple[str, ...] = ('bookshelf', 'barricade', 'clutter', 'ledge', 'stairs', 'hole')
+    worlds: tuple[str, ...] = (
+        'bookshelf',
+        'barricade',
+        'clutter',
+        'ledge',
+        'stairs',
+        'hole',
+        'memory',
+    )
     trials: int = 30  # seeded clutter worlds
     methods: tuple[str, ...] = tuple(METHODS)
     closed_loop_methods: tuple[str, ...] = CLOSED_LOOP_METHODS
@@ -70,6 +83,8 @@ class EvaluationSettings:
     map_resolution: float = MAP_RESOLUTION
     mapped_trials: int = 3  # first trials whose frames are mapped per method
     turning: tuple[str, ...] = tuple(TURNING_TRIALS)  # scripted turning trials
+    memory: tuple[str, ...] = tuple(MEMORY_FAMILIES)  # closed-loop memory families
+    memory_trials: int = 15  # seeded variants per memory family
     # Sensor timing (the LiDAR's rate is its profile's, odometry 50 Hz): see the report.
     lidar: str = 'rplidar-a2'
     depth_rate: float = 15.0  # Hz
@@ -82,7 +97,8 @@ class EvaluationSettings:
         base = cls(
             worlds=('bookshelf', 'barricade', 'clutter', 'ledge'),
             trials=2,
-            closed_loop_methods=('lidar', 'obstacle', 'obstacle-uncompensated'),
+            closed_loop_methods=('lidar', 'obstacle', 'obstacle-no-memory'),
+            memory_trials=1,
             resolution=(256, 144),
             time_limit=20.0,
             mapped_trials=3,
@@ -155,6 +171,48 @@ class Snapshot:
     scans: dict[str, Scan]
 
 
+Job = tuple[int | str, str]  # (index into the trials or a turning trial's name, method)
+
+
+@dataclass
+class EvaluationPart:
+    """What one or more jobs of an evaluation measured, to merge into another `Evaluation`."""
+
+    tallies: dict[str, ScanTally]
+    world_tallies: dict[str, dict[str, ScanTally]]
+    outcomes: list[TrialOutcome]
+    maps: dict[str, MapSet]
+    snapshots: dict[str, Snapshot]
+    collision_logs: dict[str, tuple[World, DriveLog, TrialOutcome, float]]
+    crash_maps: dict[str, MapSet]
+    stream_counts: dict[str, dict[str, int]]
+    costmaps: dict[str, CostmapSet]
+    drop_tallies: dict[str, DropTally]
+
+
+@dataclass
+class CostmapSet:
+    """The costmap figure's trial: each method's Nav2-like costmap (true poses) and the end."""
+
+    world: World
+    costmaps: dict[str, Costmap]
+    robot: tuple[float, float, float] = (0.0, 0.0, 0.0)  # world x, y, yaw at the last scan
+
+
+COSTMAP_TRIAL = 'turn-in-place'
+COSTMAP_METHODS = ('obstacle', 'obstacle-no-memory', 'lidar')
+
+
+def _run_job(settings: EvaluationSettings, job: Job) -> EvaluationPart:
+    """One job in a worker process, in an `Evaluation` of its own."""
+    from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
+
+    choose_headless_gl()
+    evaluation = Evaluation(settings)
+    evaluation.run_job(job)
+    return evaluation.part()
+
+
 class Evaluation:
     """One evaluation run; `run()` does the work, `result()` packs it up."""
 
@@ -165,6 +223,10 @@ class Evaluation:
             if name not in METHODS:
                 msg = f'unknown method {name!r}; choose from {", ".join(METHODS)}'
                 raise ConfigError(msg)
+        for name in settings.memory:
+            if name not in MEMORY_FAMILIES:
+                msg = f'unknown memory trial {name!r}; choose from {", ".join(MEMORY_FAMILIES)}'
+                raise ConfigError(msg)
         for name in settings.turning:
             if name not in TURNING_TRIALS:
                 msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
@@ -172,6 +234,8 @@ class Evaluation:
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
+        if 'memory' in settings.worlds:
+            self.trials += memory_specs(settings.memory, settings.memory_trials)
         self.tallies = {name: ScanTally() for name in settings.methods}
         self.world_tallies: dict[str, dict[str, ScanTally]] = {}
         # False drop slots per method, over the scans of worlds without drop-offs.
@@ -184,20 +248,101 @@ class Evaluation:
         self.crash_maps: dict[str, MapSet] = {}
         # Per method: what its scoring streams did (scans, fused, compensated, ...).
         self.stream_counts: dict[str, dict[str, int]] = {}
+        # The Nav2-like costmaps of the costmap figure's turning trial, per method.
+        self.costmaps: dict[str, CostmapSet] = {}
+        # The trials whose maps are kept: the first ones (each trial is scored in one run).
+        self.mapped_labels = (
+            {t.label for t in self.trials[: settings.mapped_trials]}
+            if settings.closed_loop_methods
+            else set()
+        )
 
-    def run(self) -> None:
-        jobs: list[tuple[TrialSpec | TurningSpec, str]] = [
-            (t, m) for t in self.trials for m in self.settings.closed_loop_methods
+    def jobs(self) -> list[Job]:
+        """Every trial of the run in its serial order: (trial index or turning name, method)."""
+        work: list[Job] = [
+            (index, method)
+            for index in range(len(self.trials))
+            for method in self.settings.closed_loop_methods
         ]
-        jobs += [(TURNING_TRIALS[name], '') for name in self.settings.turning]
-        self.progress.start('closed-loop and turning trials', len(jobs))
-        for trial, method in jobs:
-            if isinstance(trial, TurningSpec):
-                self._turning(trial)
-            else:
-                self._trial(trial, method)
-            self.progress.advance()
+        work += [(name, '') for name in self.settings.turning]
+        return work
+
+    def run(self, jobs: int = 1) -> None:
+        """Run every trial; `jobs` > 1 runs them in that many processes.
+
+        Each process runs single trials into an `Evaluation` of its own; the parent merges
+        their parts in the serial order, so that the result is the serial run's.
+        """
+        from scanfuse.errors import ConfigError  # noqa: PLC0415
+
+        if jobs < 1:
+            msg = f'--jobs must be 1 or more, got {jobs}'
+            raise ConfigError(msg)
+        work = self.jobs()
+        self.progress.start('closed-loop and turning trials', len(work))
+        if jobs == 1 or len(work) <= 1:
+            for job in work:
+                self.run_job(job)
+                self.progress.advance()
+        else:
+            # spawn: a fresh interpreter per worker, no GL context or numba state forked.
+            context = multiprocessing.get_context('spawn')
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+                futures = [pool.submit(_run_job, self.settings, job) for job in work]
+                for _ in as_completed(futures):
+                    self.progress.advance()
+                parts = [future.result() for future in futures]
+            for part in parts:
+                self.merge(part)
         self.progress.finish()
+
+    def run_job(self, job: Job) -> None:
+        key, method = job
+        if isinstance(key, str):
+            self._turning(TURNING_TRIALS[key])
+        else:
+            self._trial(self.trials[key], method)
+
+    def part(self) -> EvaluationPart:
+        return EvaluationPart(
+            self.tallies,
+            self.world_tallies,
+            self.outcomes,
+            self.maps,
+            self.snapshots,
+            self.collision_logs,
+            self.crash_maps,
+            self.stream_counts,
+            self.costmaps,
+            self.drop_tallies,
+        )
+
+    def merge(self, part: EvaluationPart) -> None:
+        """Add one job's part, as if that job had run here next."""
+        for name, tally in part.tallies.items():
+            self.tallies[name].merge(tally)
+        for group, tallies in part.world_tallies.items():
+            mine = self.world_tallies.setdefault(
+                group, {name: ScanTally() for name in self.settings.methods}
+            )
+            for name, tally in tallies.items():
+                mine[name].merge(tally)
+        self.outcomes += part.outcomes
+        for label, map_set in part.maps.items():
+            if label not in self.maps and len(self.maps) < self.settings.mapped_trials:
+                self.maps[label] = map_set
+        for label, snapshot in part.snapshots.items():
+            self.snapshots.setdefault(label, snapshot)
+        self.collision_logs.update(part.collision_logs)
+        self.crash_maps.update(part.crash_maps)
+        self.costmaps.update(part.costmaps)
+        for name, drops in part.drop_tallies.items():
+            self.drop_tallies[name].slots += drops.slots
+            self.drop_tallies[name].false_drops += drops.false_drops
+        for name, counts in part.stream_counts.items():
+            total = self.stream_counts.setdefault(name, {})
+            for key, value in counts.items():
+                total[key] = total.get(key, 0) + value
 
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
@@ -290,12 +435,30 @@ class Evaluation:
                 stream=dict(self.stream_counts.get(name, {})),
                 drop_free_slots=self.drop_tallies[name].slots,
                 false_drop_slots=self.drop_tallies[name].false_drops,
+                scan_memory=self._memory_scan(name),
+                closed_loop_memory=(
+                    ClosedLoopSummary.of(memory) if (memory := _memory_outcomes(outcomes)) else None
+                ),
             )
         settings = {
             key: list(value) if isinstance(value, tuple) else value
             for key, value in asdict(self.settings).items()
         }
         return EvaluationResult(settings, methods, list(self.outcomes), files)
+
+    def _memory_scan(self, name: str) -> ScanMetrics | None:
+        """Scan metrics over the memory trials' scans (None: no memory trial was run)."""
+        groups = [g for g in self.world_tallies if g in MEMORY_FAMILIES]
+        if not groups:
+            return None
+        tally = ScanTally()
+        for group in groups:
+            tally.merge(self.world_tallies[group][name])
+        return tally.summary()
+
+
+def _memory_outcomes(outcomes: list[TrialOutcome]) -> list[TrialOutcome]:
+    return [o for o in outcomes if o.trial.rsplit('-', 1)[0] in MEMORY_FAMILIES]
 
 
 class _Scorer:
@@ -345,6 +508,7 @@ class _Scorer:
             camera=camera,
             extrinsics=Extrinsics.from_config(base),
             drops=sim.world.drops,
+            footprint_radius=sim.robot.body_radius,
         )
         self.group_tallies = evaluation.world_tallies.setdefault(
             group, {name: ScanTally() for name in settings.methods}
@@ -354,10 +518,20 @@ class _Scorer:
                 label,
                 _map_set(sim.world, settings, (base.min_obstacle_height, base.max_obstacle_height)),
             )
-            if mapped and len(evaluation.maps) < settings.mapped_trials
+            if mapped and label in evaluation.mapped_labels
             else None
         )
         self.front = _obstacle_front(sim.world)
+        self.costmaps = None
+        if label == COSTMAP_TRIAL:
+            spec = GridSpec.covering(sim.world.bounds, 0.05, margin=0.3)
+            self.costmaps = evaluation.costmaps.setdefault(
+                label,
+                CostmapSet(
+                    sim.world,
+                    {name: Costmap(spec) for name in COSTMAP_METHODS if name in settings.methods},
+                ),
+            )
 
     def add(self, stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         name = self._names.get(stream)
@@ -383,6 +557,10 @@ class _Scorer:
                 )
             if self.maps is not None:
                 self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
+            if self.costmaps is not None and name in self.costmaps.costmaps:
+                self.costmaps.costmaps[name].update(scan, *frame.origin[:2], frame.pose.yaw)
+        if self.costmaps is not None:
+            self.costmaps.robot = (frame.pose.x, frame.pose.y, frame.pose.yaw)
         front = self.front
         wanted = front is not None and self.label not in evaluation.snapshots
         if front is not None and wanted and front - frame.pose.x <= FIGURE_DISTANCE:

@@ -69,11 +69,11 @@ def _write_maps(evaluation: Evaluation, out: Path) -> list[str]:
 
 
 def run_evaluation(
-    out: Path, settings: EvaluationSettings, progress: Progress | None = None
+    out: Path, settings: EvaluationSettings, progress: Progress | None = None, jobs: int = 1
 ) -> EvaluationResult:
     """Run the evaluation and write everything into `out`."""
     evaluation = Evaluation(settings, progress)
-    evaluation.run()
+    evaluation.run(jobs)
     first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
     reference = make_simulation(first, settings)
     try:
