@@ -38,6 +38,7 @@ def config(**changes) -> FusionConfig:
         'lidar_height': 0.3,
         'range_max': 3.0,
         'obstacle_min_points': 1,
+        'memory': False,  # the memory has its own tests (test_memory.py)
         **changes,
     }
     return FusionConfig(**values)

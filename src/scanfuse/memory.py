@@ -131,6 +131,7 @@ def _forget_and_project_loop(
     increment: float,
     count: int,
     turn: int,
+    half_cell: float,
     out: Any,
 ) -> None:
     """One pass over the store: forget points beyond the radius or older than `oldest_ns`,
@@ -155,15 +156,20 @@ def _forget_and_project_loop(
         if r == 0.0:
             continue
         bearing = fast_atan2(y, x)  # within 2e-4 rad: a slot boundary may shift that much
-        # Slot k covers angle_min + (k +- 1/2) increment, counted round the whole turn.
-        slot = math.floor((bearing - angle_min) / increment + 0.5)
-        if slot < 0:
-            slot += turn
-        elif slot >= turn:
-            slot -= turn
-        if slot < 0 or slot >= count:
-            continue
-        out[slot] = min(out[slot], r)
+        # A point stands for its whole cell: it fills every slot the cell's width covers
+        # seen from here (at 0.4 m a 2.5 cm cell spans 3.6 degrees, many 0.33-degree slots).
+        spread = half_cell / r if r > half_cell else 1.0
+        centre = (bearing - angle_min) / increment + 0.5
+        reach = spread / abs(increment)  # slots either side
+        first = math.floor(centre - reach)
+        last = math.floor(centre + reach)
+        slot = first + turn if first < 0 else first - turn if first >= turn else first
+        for _ in range(last - first + 1):
+            if slot < count and r < out[slot]:
+                out[slot] = r
+            slot += 1
+            if slot == turn:
+                slot = 0
 
 
 def _load_kernel() -> Callable[..., None]:
@@ -249,6 +255,7 @@ class ObstacleMemory:
             grid.angle_increment,
             grid.count,
             turn,
+            self.settings.cell / 2.0,
             out,
         )
         out[np.isinf(out)] = np.nan
