@@ -100,3 +100,13 @@ def test_shipped_example_parameter_file_holds_every_parameter():
 def test_d2l_compat_refuses_an_off_centre_row():
     with pytest.raises(ConfigError, match='leave scan_row unset or turn d2l_compat off'):
         FusionConfig.from_dict({'d2l_compat': True, 'scan_row': 10})
+
+
+def test_the_robot_parameter_file_with_node_settings_loads_for_bag_and_simulator():
+    from scanfuse.config import NODE_ONLY
+    from scanfuse.ros.params import NodeSettings
+    from tests.support import REPOSITORY
+
+    assert set(NodeSettings.model_fields) == NODE_ONLY
+    config = FusionConfig.from_ros_params(REPOSITORY / 'examples' / 'scanfuse_robot.yaml')
+    assert config.depth_topic == '/camera/camera/depth/image_rect_raw'

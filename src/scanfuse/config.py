@@ -18,6 +18,9 @@ from scanfuse.errors import ConfigError
 from scanfuse.sources import MAX_MOUNTING_OFFSET, SourceSet, sources_to_params, split_sources
 
 NODE_NAME = 'scanfuse'
+# Parameters of the live node alone (ros.params.NodeSettings), which the one parameter file
+# may hold beside the fusion's: the bag processor and the simulator leave them out.
+NODE_ONLY = frozenset({'pair_wait', 'lidar_timeout'})
 
 # Physically plausible bounds, checked at every entry (parameter file, `-p`, with_changes).
 # A sensor mounted more than 100 m from its robot's base frame is a typo, and a finite float64
@@ -334,8 +337,12 @@ class FusionConfig(BaseModel):
 
     @classmethod
     def from_ros_params(cls, path: str | Path, node_name: str = NODE_NAME) -> FusionConfig:
-        """Load `<node_name>: ros__parameters: {...}` (or `/**:`) from a ROS 2 parameter file."""
-        return cls.from_dict(read_ros_params(path, node_name))
+        """Load `<node_name>: ros__parameters: {...}` (or `/**:`) from a ROS 2 parameter file.
+
+        The node's own settings (`NODE_ONLY`) may be in it too and are left out.
+        """
+        values = read_ros_params(path, node_name)
+        return cls.from_dict({k: v for k, v in values.items() if k not in NODE_ONLY})
 
     def to_ros_params(self, node_name: str = NODE_NAME) -> dict[str, Any]:
         """The parameter-file form of this configuration (loadable by ROS 2 and by us)."""
