@@ -95,7 +95,7 @@ class EvaluationSettings:
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
         base = cls(
-            worlds=('bookshelf', 'barricade', 'clutter', 'ledge'),
+            worlds=('bookshelf', 'barricade', 'clutter', 'ledge', 'memory'),
             trials=2,
             closed_loop_methods=('lidar', 'obstacle', 'obstacle-no-memory'),
             memory_trials=1,
