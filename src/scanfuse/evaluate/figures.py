@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.patches import Circle
 
 from scanfuse.camera import depth_in_metres
-from scanfuse.sim.worlds import DROP_KINDS
+from scanfuse.sim.snapshot import draw_footprints
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -108,21 +108,7 @@ class WorldView:
 
 
 def _draw_footprints(axes: Axes, view: WorldView) -> None:
-    for kind, polygon in view.footprints:
-        if kind in DROP_KINDS:
-            # Where the floor is missing: hatched, not filled, so the scans on it stay visible.
-            axes.fill(
-                polygon[:, 0],
-                polygon[:, 1],
-                fill=False,
-                hatch='//',
-                color='tab:orange',
-                linewidth=1.0,
-                label=f'{kind} (floor missing)',
-            )
-            continue
-        color = '0.75' if kind == 'wall' else '0.45'
-        axes.fill(polygon[:, 0], polygon[:, 1], color=color, alpha=0.6, linewidth=0)
+    draw_footprints(axes, view.footprints)  # the simulator's own picture of a world
     robot = Circle(view.robot_xy, view.robot_radius, fill=False, color='black', linewidth=1.5)
     axes.add_patch(robot)
     tip = (

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from scanfuse.sim.simulation import EPOCH_NS
+from scanfuse.sim.worlds import DROP_KINDS
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -44,6 +45,40 @@ def scan_points(scan: Scan, frame: LidarFrame) -> npt.NDArray[np.float64]:
     return np.column_stack([x, y])
 
 
+def draw_footprints(axes: Any, footprints: list[tuple[str, npt.NDArray[np.float64]]]) -> None:
+    """Obstacles from above in their kind's colour (one legend entry per kind), and drops
+    (where the floor is missing) hatched, so the scans on their edges stay visible."""
+    from matplotlib.patches import Polygon  # noqa: PLC0415
+
+    drawn: set[str] = set()
+    for kind, polygon in footprints:
+        label = None if kind in drawn else kind
+        drawn.add(kind)
+        if kind in DROP_KINDS:
+            patch = Polygon(
+                polygon,
+                closed=True,
+                fill=False,
+                hatch='//',
+                edgecolor='#ef6c00',
+                linewidth=0.8,
+                label=f'{kind} (floor missing)' if label else None,
+                zorder=1,
+            )
+        else:
+            patch = Polygon(
+                polygon,
+                closed=True,
+                facecolor=KIND_COLOURS.get(kind, '#607d8b'),
+                edgecolor='black',
+                linewidth=0.4,
+                alpha=0.55,
+                label=label,
+                zorder=1,
+            )
+        axes.add_patch(patch)
+
+
 def save_snapshot(
     world: World,
     frame: LidarFrame,
@@ -57,40 +92,16 @@ def save_snapshot(
 
     mpl.use('Agg')
     import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.patches import Circle, Polygon  # noqa: PLC0415
+    from matplotlib.patches import Circle  # noqa: PLC0415
 
     figure, axes = plt.subplots(figsize=(9, 8), dpi=110)
-    drawn: set[str] = set()
-    for obstacle in world.obstacles:
-        colour = KIND_COLOURS.get(obstacle.kind, '#607d8b')
-        label = obstacle.kind if obstacle.kind not in drawn else None
-        drawn.add(obstacle.kind)
-        axes.add_patch(
-            Polygon(
-                obstacle.footprint,
-                closed=True,
-                facecolor=colour,
-                edgecolor='black',
-                linewidth=0.4,
-                alpha=0.55,
-                label=label,
-                zorder=1,
-            )
-        )
-    for drop in world.drops:
-        # Where the floor is missing: hatched, so the points on its edge stay visible.
-        axes.add_patch(
-            Polygon(
-                drop.footprint,
-                closed=True,
-                fill=False,
-                hatch='//',
-                edgecolor='#ef6c00',
-                linewidth=0.8,
-                label=f'{drop.kind} (floor missing)',
-                zorder=1,
-            )
-        )
+    draw_footprints(
+        axes,
+        [
+            *((o.kind, o.footprint) for o in world.obstacles),
+            *((d.kind, d.footprint) for d in world.drops),
+        ],
+    )
     lidar = scan_points(frame.scan, frame)
     truth = scan_points(frame.truth, frame)
     origin = frame.origin[:2]
