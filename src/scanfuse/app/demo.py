@@ -210,7 +210,7 @@ def run_demo(out: Path, console: Console) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     core_figure = core_demo(out, console)
     settings = EvaluationSettings.quick(trials=DEMO_CLUTTER_WORLDS)
-    console.rule('quick evaluation: bookshelf, barricade, clutter, ledge')
+    console.rule('quick evaluation: bookshelf, barricade, clutter, ledge, memory trials')
     evaluation_dir = out / 'evaluation'
     run_evaluation(evaluation_dir, settings, RichProgress(console))
     console.rule('a Foxglove-ready bag')
