@@ -116,10 +116,6 @@ def test_drop_world_goals_lie_on_the_floor_across_the_drop_from_the_start():
         assert any(drop.contains(*point) for point in line for drop in world.drops), name
 
 
-@pytest.mark.skipif(
-    'detect_drops' not in FusionConfig.model_fields,
-    reason='the obstacle method reports drops once the drop-off core (issue 15, item 1) is in',
-)
 def test_in_the_ledge_world_lidar_falls_and_obstacle_stops_and_arrives():
     settings = EvaluationSettings.quick(
         worlds=('ledge',),
