@@ -156,9 +156,20 @@ def simulate(
     ] = 'straight',
     duration: Annotated[float, typer.Option(help='simulated seconds')] = 20.0,
     seed: Annotated[int, typer.Option(help='world layout and sensor noise seed')] = 0,
-    lidar: Annotated[str, typer.Option(help='rplidar-a2 | hokuyo-ust10lx')] = 'rplidar-a2',
+    lidar: Annotated[
+        str | None,
+        typer.Option(help="rplidar-a2 | hokuyo-ust10lx (default: the robot's)"),
+    ] = None,
     camera: Annotated[str, typer.Option(help='depth camera profile')] = 'd435',
     resolution: Annotated[str, typer.Option(help='depth image WIDTHxHEIGHT')] = '640x480',
+    robot: Annotated[
+        str,
+        typer.Option(
+            help='default (one 360-degree LiDAR, a front camera) | amr (two 270-degree LiDARs '
+            'at opposite corners, a front and a rear camera; topics as '
+            'examples/scanfuse_multi.yaml names them)'
+        ),
+    ] = 'default',
     depth_rate: Annotated[
         float | None, typer.Option(help='depth images per second (default: the camera rate)')
     ] = None,
@@ -219,6 +230,7 @@ def simulate(
             snapshot=snapshot,
             mounting=mounting,
             console=Console(),
+            robot=robot,
         )
 
 

@@ -206,6 +206,13 @@ class FusionConfig(BaseModel):
     fragment_timeout: float = Field(
         0.2, gt=0.0, le=10.0, description='seconds a fragmented revolution may take'
     )
+    full_circle: bool = Field(
+        default=False,
+        description=(
+            "output a 360-degree scan on the first LiDAR's increment, NaN where no source has "
+            "a reading (a 270-degree LiDAR's blind sector, filled by another LiDAR or camera)"
+        ),
+    )
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )

@@ -147,6 +147,42 @@ class AngleGrid:
         return index
 
 
+def full_circle(scan: Scan) -> Scan | None:
+    """`scan` on a 360-degree grid of its own increment, NaN where it has no reading.
+
+    Its readings keep their exact angles (the grid is shifted by whole increments to start
+    within one increment of -pi, or of +pi for a clockwise scan), so nothing is resampled:
+    another source can fill the field of view this LiDAR lacks (a 270-degree scanner's
+    90 degrees behind it). None when the scan covers the circle already.
+    """
+    step = abs(scan.angle_increment)
+    count = math.floor(TWO_PI / step + 1e-9)
+    if len(scan) >= count:
+        return None
+    sign = 1.0 if scan.angle_increment > 0.0 else -1.0
+    # Whole increments between the scan's first angle and the circle's start.
+    shift = math.floor((sign * scan.angle_min + math.pi) / step + 1e-9)
+    if shift + len(scan) > count:
+        shift = count - len(scan)  # a grid beyond +-pi: keep every reading, start earlier
+    angle_min = scan.angle_min - sign * shift * step
+    ranges = np.full(count, np.nan, dtype=np.float32)
+    ranges[shift : shift + len(scan)] = scan.ranges
+    intensities = None
+    if scan.intensities is not None and scan.intensities.size:
+        intensities = np.zeros(count, dtype=np.float32)
+        intensities[shift : shift + len(scan)] = scan.intensities
+    return replace(
+        scan,
+        angle_min=angle_min,
+        angle_max=angle_min + scan.angle_increment * (count - 1),
+        ranges=ranges,
+        intensities=intensities,
+        # The readings moved by `shift` places: the beams' times are the de-skew's to use
+        # (the stream widens after it), not the published message's.
+        time_increment=0.0,
+    )
+
+
 def normalized_ranges(scan: Scan) -> FloatArray:
     """Ranges with every finite value that is not a real reading turned into NaN.
 

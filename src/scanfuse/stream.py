@@ -51,6 +51,7 @@ from scanfuse.fuse.merge import merge_scans
 from scanfuse.memory import MemorySettings, ObstacleMemory, Placement, points_of_scan
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
+from scanfuse.scan import full_circle
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
@@ -460,6 +461,7 @@ class FusionStream(Generic[T]):
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan
         lidar, deskewed = self._deskew(scan)
+        lidar = self._widen(lidar)
         if self.camera is None:
             return self._pass(pending, lidar, deskewed, Passed.NO_CAMERA_INFO)
         frame = self._nearest_frame(scan.stamp_ns)
@@ -501,6 +503,11 @@ class FusionStream(Generic[T]):
         )
         return self._remember(self._with_extras(output), frame, choice.extrinsics)
 
+    def _widen(self, lidar: Scan) -> Scan:
+        """With `full_circle`, the first LiDAR's scan on a 360-degree grid (`scan.full_circle`)."""
+        wide = full_circle(lidar) if self.config.full_circle else None
+        return lidar if wide is None else wide
+
     def _pass(
         self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
     ) -> StreamOutput[T]:
@@ -509,7 +516,7 @@ class FusionStream(Generic[T]):
             token=pending.token,
             lidar=lidar,
             # A scan that is not one received message as it came is published anew.
-            fused=lidar if deskewed or pending.assembled else None,
+            fused=lidar if lidar is not pending.scan or pending.assembled else None,
             depth_scan=None,
             arrived_ns=pending.arrived_ns,
             passed=reason,

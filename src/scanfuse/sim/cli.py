@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from rich.table import Table
@@ -12,7 +13,7 @@ from scanfuse.progress import RichProgress
 from scanfuse.sim.drive import scripted_path
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record
-from scanfuse.sim.robot import RobotSpec
+from scanfuse.sim.robot import robot_spec
 from scanfuse.sim.sensors import DepthBackend
 from scanfuse.sim.simulation import SimConfig
 
@@ -64,7 +65,7 @@ def run_simulate(
     path: str,
     duration: float,
     seed: int,
-    lidar: str,
+    lidar: str | None,
     camera: str,
     resolution: str,
     depth_rate: float | None,
@@ -74,20 +75,22 @@ def run_simulate(
     console: Console,
     mounting: dict[str, float] | None = None,
     depth_latency: float = 0.040,
+    robot: str = 'default',
 ) -> RecordSummary:
-    """Record one run; `mounting` changes RobotSpec's sensor poses (metres, radians)."""
-    robot = RobotSpec(**(mounting or {}))
+    """Record one run of the robot called `robot` (`ROBOTS`); `mounting` changes its first
+    sensors' poses (metres, radians); `lidar` None: the robot's own LiDAR model."""
+    spec = replace(robot_spec(robot), **(mounting or {}))
     config = SimConfig(
         world=world,
         seed=seed,
-        lidar=lidar,
+        lidar=lidar or spec.lidar_model,
         camera=camera,
         resolution=parse_resolution(resolution),
         depth_rate=depth_rate,
         depth_latency=depth_latency,
         noise=noise,
         depth_backend=parse_backend(depth_backend),
-        robot=robot,
+        robot=spec,
     )
     controller = scripted_path(path)
     summary = record(

@@ -21,6 +21,11 @@ are logged at their stamps, 50 Hz:
 /tf_static holds base_link -> laser and base_link -> camera_link ->
 camera_depth_optical_frame (REP-103 optical rotation).
 
+A robot with several sensors (the `amr`) has one LaserScan topic (and its `_truth` twin) per
+LiDAR and one Image + CameraInfo pair per camera, as examples/scanfuse_multi.yaml names
+them (`/front/scan`, `/rear/scan`, `/front_camera/depth/image_rect_raw`, ...; see
+`RobotSpec.lidars()` and `cameras()`), each in its own frame, all in /tf_static.
+
 /collisions is a `std_msgs/String` because every ROS 2 store has it and any tool
 prints it; each message lists the robot-obstacle contacts of one instant.
 
@@ -63,7 +68,6 @@ from scanfuse.ros.messages import (
 )
 from scanfuse.ros.staging import Staging, output_error
 from scanfuse.sim.errors import SimError
-from scanfuse.sim.sensors import LASER_FRAME, OPTICAL_FRAME
 from scanfuse.sim.simulation import (
     EPOCH_NS,
     NANOSECONDS,
@@ -94,12 +98,35 @@ TOPICS = {
     '/scan_truth': LASER_SCAN,
     '/camera/depth/image_raw': IMAGE,
     '/camera/depth/camera_info': CAMERA_INFO,
+}
+COMMON_TOPICS = {
     '/tf': TF_MESSAGE,
     '/tf_static': TF_MESSAGE,
     '/odom': ODOMETRY,
     '/ground_truth/pose': POSE_STAMPED,
     '/collisions': STRING,
 }
+TOPICS.update(COMMON_TOPICS)
+
+
+def robot_topics(robot: RobotSpec) -> dict[str, str]:
+    """Every topic a recording of `robot` holds, with its message type."""
+    topics: dict[str, str] = {}
+    for lidar in robot.lidars():
+        topics[lidar.topic] = LASER_SCAN
+        topics[truth_topic(lidar.topic)] = LASER_SCAN
+    for camera in robot.cameras():
+        topics[camera.depth_topic] = IMAGE
+        topics[camera.info_topic] = CAMERA_INFO
+    topics.update(COMMON_TOPICS)
+    return topics
+
+
+def truth_topic(scan_topic: str) -> str:
+    """The ground-truth scan's topic beside a LiDAR's: /scan -> /scan_truth."""
+    return f'{scan_topic}_truth'
+
+
 _FOREVER = QosTime(2147483647, 4294967295)
 LATCHED = Qos(
     QosHistory.KEEP_LAST,
@@ -117,26 +144,40 @@ OPTICAL_ROTATION = (-0.5, 0.5, -0.5, 0.5)
 
 
 def static_transforms(robot: RobotSpec, stamp_ns: int = EPOCH_NS) -> list[StampedTransform]:
-    """base_link -> laser, base_link -> camera_link, camera_link -> optical frame."""
-    half_yaw = robot.lidar_yaw / 2
-    half_pitch = robot.camera_pitch / 2
-    return [
-        StampedTransform(
-            BASE_FRAME,
-            LASER_FRAME,
-            (robot.lidar_x, 0.0, robot.lidar_height),
-            (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
-            stamp_ns,
-        ),
-        StampedTransform(
-            BASE_FRAME,
-            CAMERA_LINK,
-            (robot.camera_x, 0.0, robot.camera_height),
-            (0.0, math.sin(half_pitch), 0.0, math.cos(half_pitch)),
-            stamp_ns,
-        ),
-        StampedTransform(CAMERA_LINK, OPTICAL_FRAME, (0.0, 0.0, 0.0), OPTICAL_ROTATION, stamp_ns),
-    ]
+    """base_link -> each laser, base_link -> each camera_link, camera_link -> optical frame."""
+    transforms = []
+    for lidar in robot.lidars():
+        half_yaw = lidar.yaw / 2
+        transforms.append(
+            StampedTransform(
+                BASE_FRAME,
+                lidar.frame,
+                (lidar.x, lidar.y, lidar.z),
+                (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
+                stamp_ns,
+            )
+        )
+    for camera in robot.cameras():
+        transforms.append(
+            StampedTransform(
+                BASE_FRAME,
+                camera.link,
+                (camera.x, camera.y, camera.z),
+                _yaw_pitch_quaternion(camera.yaw, camera.pitch),
+                stamp_ns,
+            )
+        )
+        transforms.append(
+            StampedTransform(camera.link, camera.frame, (0.0, 0.0, 0.0), OPTICAL_ROTATION, stamp_ns)
+        )
+    return transforms
+
+
+def _yaw_pitch_quaternion(yaw: float, pitch: float) -> tuple[float, float, float, float]:
+    """x, y, z, w of the rotation yaw about z after pitch about y (R = Rz(yaw) Ry(pitch))."""
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    return (-sy * sp, cy * sp, sy * cp, cy * cp)
 
 
 def collision_json(stamp_ns: int, contacts: list[Contact]) -> str:
@@ -229,10 +270,18 @@ class BagSink:
     contacts: list[Contact] = field(default_factory=list)
     first_lidar: LidarFrame | None = None
     states: list[StateSample] = field(default_factory=list)
+    scan_topics: dict[str, str] = field(default_factory=dict)  # LiDAR source -> topic
+    camera_topics: dict[str, tuple[str, str]] = field(default_factory=dict)  # source -> topics
+    camera_frames: dict[str, str] = field(default_factory=dict)  # source -> optical frame
 
     def open(self, robot: RobotSpec) -> None:
         store = typestore()
-        for topic, msgtype in TOPICS.items():
+        self.scan_topics = {lidar.source: lidar.topic for lidar in robot.lidars()}
+        self.camera_topics = {
+            camera.source: (camera.depth_topic, camera.info_topic) for camera in robot.cameras()
+        }
+        self.camera_frames = {camera.source: camera.frame for camera in robot.cameras()}
+        for topic, msgtype in robot_topics(robot).items():
             qos = [LATCHED] if topic == '/tf_static' else []
             self.connections[topic] = self.writer.add_connection(
                 topic, msgtype, typestore=store, offered_qos_profiles=qos
@@ -244,16 +293,19 @@ class BagSink:
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def on_lidar(self, frame: LidarFrame) -> None:
-        if self.first_lidar is None:
+        if self.first_lidar is None and frame.source == next(iter(self.scan_topics)):
             self.first_lidar = frame
-        self._write('/scan', frame.arrival_ns, scan_to_cdr(frame.scan))
-        self._write('/scan_truth', frame.arrival_ns, scan_to_cdr(frame.truth))
+        topic = self.scan_topics[frame.source]
+        self._write(topic, frame.arrival_ns, scan_to_cdr(frame.scan))
+        self._write(truth_topic(topic), frame.arrival_ns, scan_to_cdr(frame.truth))
 
     def on_depth(self, frame: DepthFrame) -> None:
-        image = depth_to_cdr(frame.depth, frame_id=OPTICAL_FRAME, stamp_ns=frame.stamp_ns)
-        self._write('/camera/depth/image_raw', frame.arrival_ns, image)
+        depth_topic, info_topic = self.camera_topics[frame.source]
+        optical = self.camera_frames[frame.source]
+        image = depth_to_cdr(frame.depth, frame_id=optical, stamp_ns=frame.stamp_ns)
+        self._write(depth_topic, frame.arrival_ns, image)
         info = camera_to_cdr(frame.camera, stamp_ns=frame.stamp_ns)
-        self._write('/camera/depth/camera_info', frame.arrival_ns, info)
+        self._write(info_topic, frame.arrival_ns, info)
 
     def on_state(self, sample: StateSample) -> None:
         self.states.append(sample)

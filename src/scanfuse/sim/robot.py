@@ -3,6 +3,12 @@
 The body frame of the robot is `base_link` (REP-105): on the floor between the
 wheels, x forward, y left, z up. Every robot geom is in geom group 3, which the
 ray casts exclude, so the sensors never see the robot itself.
+
+Two robots (`ROBOTS`): `default`, round, one 360-degree LiDAR and one front depth camera;
+`amr`, a box-shaped warehouse AMR with two 270-degree LiDARs at opposite corners (front-left
+facing forward-left, rear-right facing backward-right, both at the default LiDAR's height,
+above the low obstacles) and a front and a rear depth camera, named and on the topics of
+examples/scanfuse_multi.yaml.
 """
 
 from __future__ import annotations
@@ -19,6 +25,48 @@ ROBOT_BODY = 'robot'
 # far above what the wheels sink into the floor or rock on the casters (millimetres), far
 # below any step a robot can fall down (a stair rises 0.15-0.20 m).
 FALL_DEPTH = 0.05
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Where an extra sensor sits: x, y in base_link (metres), yaw (radians, + left).
+
+    Its height (and a camera's pitch) is the robot's `lidar_height` (`camera_height`,
+    `camera_pitch`): the extra sensors are the first ones' twins.
+    """
+
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class LidarMount:
+    """One LiDAR of a robot: its source name, frame, topic and pose in base_link."""
+
+    source: str  # the name in a scanfuse parameter file's `lidars` ('' on the default robot)
+    frame: str
+    topic: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    """One depth camera of a robot: source name, frames, topics and camera_link pose."""
+
+    source: str  # the name in `cameras` ('' on the default robot)
+    frame: str  # the optical frame (REP-103: z forward, x right, y down)
+    link: str  # camera_link (x forward, z up)
+    depth_topic: str
+    info_topic: str
+    x: float
+    y: float
+    z: float
+    yaw: float
+    pitch: float
 
 
 @dataclass(frozen=True)
@@ -46,6 +94,14 @@ class RobotSpec:
     camera_x: float = 0.12
     camera_height: float = 0.45
     camera_pitch: float = math.radians(20.0)
+    name: str = 'default'
+    lidar_y: float = 0.0
+    # Half length and half width of a box chassis (None: a cylinder of body_radius). The
+    # evaluation's navigator plans for the disc of body_radius: give a box its circumradius.
+    chassis: tuple[float, float] | None = None
+    rear_lidar: Mount | None = None  # a second LiDAR, the first's model and height
+    rear_camera: Mount | None = None  # a second depth camera, the first's model and pitch
+    lidar_model: str = 'rplidar-a2'  # the LiDAR profile it carries unless told otherwise
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lidar_height < 3.0:
@@ -57,6 +113,76 @@ class RobotSpec:
         if not -math.pi / 2 < self.camera_pitch < math.pi / 2:
             msg = f'camera_pitch {self.camera_pitch} rad must be within (-pi/2, pi/2)'
             raise SimError(msg)
+        if self.chassis is not None and math.hypot(*self.chassis) > self.body_radius + 1e-9:
+            msg = (
+                f'a {2 * self.chassis[0]:.3g} x {2 * self.chassis[1]:.3g} m chassis reaches '
+                f'beyond body_radius {self.body_radius} m; give body_radius its circumradius '
+                f'{math.hypot(*self.chassis):.3f} m (the planner keeps that disc clear)'
+            )
+            raise SimError(msg)
+
+    @property
+    def several(self) -> bool:
+        """The robot has more than one LiDAR or camera (named sources, per-sensor topics)."""
+        return self.rear_lidar is not None or self.rear_camera is not None
+
+    def lidars(self) -> tuple[LidarMount, ...]:
+        """Every LiDAR, the first (the fused scan's frame and trigger) first."""
+        if not self.several:
+            return (
+                LidarMount(
+                    '',
+                    'laser',
+                    '/scan',
+                    self.lidar_x,
+                    self.lidar_y,
+                    self.lidar_height,
+                    self.lidar_yaw,
+                ),
+            )
+        mounts = [
+            LidarMount(
+                'front',
+                'front_laser',
+                '/front/scan',
+                self.lidar_x,
+                self.lidar_y,
+                self.lidar_height,
+                self.lidar_yaw,
+            )
+        ]
+        if self.rear_lidar is not None:
+            rear = self.rear_lidar
+            mounts.append(
+                LidarMount(
+                    'rear', 'rear_laser', '/rear/scan', rear.x, rear.y, self.lidar_height, rear.yaw
+                )
+            )
+        return tuple(mounts)
+
+    def cameras(self) -> tuple[CameraMount, ...]:
+        """Every depth camera, the first (paired with the first LiDAR's scans) first."""
+        pitch, z = self.camera_pitch, self.camera_height
+        if not self.several:
+            return (
+                CameraMount(
+                    '',
+                    'camera_depth_optical_frame',
+                    'camera_link',
+                    '/camera/depth/image_raw',
+                    '/camera/depth/camera_info',
+                    self.camera_x,
+                    0.0,
+                    z,
+                    0.0,
+                    pitch,
+                ),
+            )
+        mounts = [_named_camera('front', self.camera_x, 0.0, 0.0, z, pitch)]
+        if self.rear_camera is not None:
+            rear = self.rear_camera
+            mounts.append(_named_camera('rear', rear.x, rear.y, rear.yaw, z, pitch))
+        return tuple(mounts)
 
     def wheel_speeds(self, v: float, omega: float) -> tuple[float, float]:
         """Left and right wheel speeds (rad/s) for body speeds v (m/s) and omega (rad/s)."""
@@ -84,12 +210,17 @@ class RobotSpec:
             f'condim="1" priority="1" friction="0 0 0" group="{group}"/>'
             for name, sign in (('front', 1.0), ('back', -1.0))
         )
+        if self.chassis is None:
+            shape = f'type="cylinder" size="{self.body_radius:.6g} {half_height:.6g}"'
+        else:
+            shape = (
+                f'type="box" size="{self.chassis[0]:.6g} {self.chassis[1]:.6g} {half_height:.6g}"'
+            )
         return (
             f'<body name="{ROBOT_BODY}" pos="{start.x:.6g} {start.y:.6g} 0" '
             f'euler="0 0 {start.yaw:.9g}">'
             '<freejoint name="robot_root"/>'
-            f'<geom name="robot/chassis" type="cylinder" size="{self.body_radius:.6g} '
-            f'{half_height:.6g}" pos="0 0 {self.body_bottom + half_height:.6g}" '
+            f'<geom name="robot/chassis" {shape} pos="0 0 {self.body_bottom + half_height:.6g}" '
             f'mass="{self.mass:.6g}" group="{group}" rgba="0.2 0.4 0.8 1"/>'
             f'{casters}{wheels}</body>'
         )
@@ -104,6 +235,54 @@ class RobotSpec:
             'forcelimited="true"/>'
             for side in ('left', 'right')
         )
+
+
+def _named_camera(name: str, x: float, y: float, yaw: float, z: float, pitch: float) -> CameraMount:
+    """A camera named as examples/scanfuse_multi.yaml names it (`front_depth`, ...)."""
+    return CameraMount(
+        f'{name}_depth',
+        f'{name}_camera_depth_optical_frame',
+        f'{name}_camera_link',
+        f'/{name}_camera/depth/image_rect_raw',
+        f'/{name}_camera/depth/camera_info',
+        x,
+        y,
+        z,
+        yaw,
+        pitch,
+    )
+
+
+# The AMR's box chassis, half length and half width (metres): 0.5 m x 0.34 m.
+AMR_CHASSIS = (0.25, 0.17)
+AMR = RobotSpec(
+    name='amr',
+    lidar_model='hokuyo-ust10lx',
+    body_radius=math.hypot(*AMR_CHASSIS),
+    chassis=AMR_CHASSIS,
+    mass=14.0,
+    wheel_separation=0.34,
+    caster_offset=0.20,
+    max_wheel_torque=3.0,
+    # Front-left corner, facing forward-left; rear-right corner, facing backward-right:
+    # each 270-degree field of view covers the two faces beside its corner.
+    lidar_x=AMR_CHASSIS[0],
+    lidar_y=AMR_CHASSIS[1],
+    lidar_yaw=math.pi / 4,
+    rear_lidar=Mount(-AMR_CHASSIS[0], -AMR_CHASSIS[1], -3 * math.pi / 4),
+    camera_x=AMR_CHASSIS[0],
+    rear_camera=Mount(-AMR_CHASSIS[0], 0.0, math.pi),
+)
+ROBOTS: dict[str, RobotSpec] = {'default': RobotSpec(), 'amr': AMR}
+
+
+def robot_spec(name: str) -> RobotSpec:
+    """The robot called `name` (one of `ROBOTS`)."""
+    spec = ROBOTS.get(name)
+    if spec is None:
+        msg = f'unknown robot {name!r}; choose one of {", ".join(ROBOTS)}'
+        raise SimError(msg)
+    return spec
 
 
 @dataclass

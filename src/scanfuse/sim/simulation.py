@@ -17,6 +17,10 @@ step as a real one's do:
   at the end of the sweep, stamp + scan_time.
 - **Odometry and state** (`state_rate`, 50 Hz): wheel odometry, the true pose and the
   robot's contacts.
+- **A robot with several sensors** (`RobotSpec.lidars()`, `cameras()`, the `amr`): every
+  LiDAR sweeps and every camera exposes on its own clock, the second one `sensor_stagger`
+  of its period after the first (two free-running sensors are never in phase). Frames
+  carry their sensor's source name; the controller steps on the first LiDAR's scans.
 
 Falls: at every state sample the base's height is compared with where it settled; once it
 is more than `FALL_DEPTH` lower, the base has left the floor plane (a ledge, a stair, a
@@ -46,9 +50,16 @@ from scanfuse.progress import NullProgress, Progress
 from scanfuse.scan import Scan
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.headless_gl import HEADLESS_BACKENDS
-from scanfuse.sim.robot import FALL_DEPTH, ROBOT_BODY, ROBOT_GEOM_GROUP, RobotSpec, WheelOdometry
+from scanfuse.sim.robot import (
+    FALL_DEPTH,
+    ROBOT_BODY,
+    ROBOT_GEOM_GROUP,
+    CameraMount,
+    LidarMount,
+    RobotSpec,
+    WheelOdometry,
+)
 from scanfuse.sim.sensors import (
-    LASER_FRAME,
     DepthBackend,
     DepthNoise,
     LidarNoise,
@@ -79,6 +90,11 @@ _DEFAULTS = FusionConfig()
 # camera_link (x forward, z up) -> optical frame (z forward, x right, y down), REP-103.
 LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 CAMERA_NAME = 'depth_camera'
+
+
+def camera_name(mount: CameraMount) -> str:
+    """The MJCF camera of a mount: `depth_camera` for the first, `depth_camera_<source>`."""
+    return f'{CAMERA_NAME}_{mount.source}' if mount.source else CAMERA_NAME
 
 
 def pitch_matrix(pitch: float) -> Matrix:
@@ -115,6 +131,7 @@ class SimConfig:
     state_rate: float = 50.0  # odometry, true pose and contact checks, Hz
     min_obstacle_height: float = _DEFAULTS.min_obstacle_height
     max_obstacle_height: float = _DEFAULTS.max_obstacle_height
+    sensor_stagger: float = 0.5  # share of a period between a robot's two LiDARs (cameras)
 
     def __post_init__(self) -> None:
         if self.depth_rate is not None and not 0.0 < self.depth_rate <= 1000.0:
@@ -134,6 +151,9 @@ class SimConfig:
         if not 0.0 < self.state_rate <= 1000.0:
             msg = f'state_rate {self.state_rate} Hz must be in (0, 1000]'
             raise SimError(msg)
+        if not 0.0 <= self.sensor_stagger < 1.0:
+            msg = f'sensor_stagger {self.sensor_stagger} must be in [0, 1) of a period'
+            raise SimError(msg)
 
 
 def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> FusionConfig:
@@ -144,6 +164,8 @@ def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> Fusion
     """
     robot = config.robot
     camera = camera_profile(config.camera)
+    if robot.several:
+        return _named_fusion_config(config, base or FusionConfig())
     return (base or FusionConfig()).with_changes(
         camera_x=robot.camera_x,
         camera_y=0.0,
@@ -162,6 +184,45 @@ def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> Fusion
     )
 
 
+def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
+    """A robot with several sensors: each one a named source (examples/scanfuse_multi.yaml),
+    the output a 360-degree scan in the first LiDAR's frame (`full_circle`)."""
+    robot = config.robot
+    camera = camera_profile(config.camera)
+    # The first named LiDAR and camera set the one-source mounting parameters.
+    values = base.model_dump(exclude={'sources'})
+    lidars = robot.lidars()
+    cameras = robot.cameras()
+    values['lidars'] = [mount.source for mount in lidars]
+    for mount in lidars:
+        values[mount.source] = {
+            'topic': mount.topic,
+            'x': mount.x,
+            'y': mount.y,
+            'z': mount.z,
+            'yaw': mount.yaw,
+        }
+    values['cameras'] = [mount.source for mount in cameras]
+    for cam in cameras:
+        values[cam.source] = {
+            'depth_topic': cam.depth_topic,
+            'camera_info_topic': cam.info_topic,
+            'x': cam.x,
+            'y': cam.y,
+            'z': cam.z,
+            'pitch': cam.pitch,
+            'yaw': cam.yaw,
+        }
+    values.update(
+        full_circle=True,
+        range_min=camera.range_min,
+        range_max=camera.range_max,
+        min_obstacle_height=config.min_obstacle_height,
+        max_obstacle_height=config.max_obstacle_height,
+    )
+    return FusionConfig.from_dict(values)
+
+
 @dataclass(frozen=True)
 class LidarFrame:
     """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose.
@@ -176,6 +237,8 @@ class LidarFrame:
     pose: Pose2D  # base_link in the world
     origin: tuple[float, float, float]  # LiDAR origin in the world
     delivered_ns: int | None = None  # None: the stamp (a scan cast all at once)
+    source: str = ''  # the LiDAR's source name ('' : the default robot's one LiDAR)
+    heading: float | None = None  # LiDAR heading in the world (None: the pose's yaw)
 
     @property
     def arrival_ns(self) -> int:
@@ -190,6 +253,7 @@ class DepthFrame:
     depth: npt.NDArray[np.uint16]
     camera: CameraModel
     delivered_ns: int | None = None  # None: the stamp (no latency)
+    source: str = ''  # the camera's source name ('' : the default robot's one camera)
 
     @property
     def arrival_ns(self) -> int:
@@ -283,6 +347,7 @@ _STATE, _EXPOSE, _SWEEP, _BEAMS, _DELIVER_DEPTH, _DELIVER_SCAN = range(6)
 class _Sweep:
     """A LiDAR sweep in progress: the pose at its stamp and the beams cast so far."""
 
+    lidar: int  # index into the robot's LiDARs
     stamp_ns: int
     pose: Pose2D
     origin: tuple[float, float, float]
@@ -294,15 +359,17 @@ def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
     """The whole scene: options, assets, the world's geoms, the robot and its actuators."""
     width, height = config.resolution
     camera = camera_profile(config.camera)
-    pitch = robot.camera_pitch
-    # MuJoCo cameras look along -z with +y up: x = -y_link, y = z_link, both pitched.
-    x_axis = (0.0, -1.0, 0.0)
-    y_axis = (math.sin(pitch), 0.0, math.cos(pitch))
-    camera_xml = (
-        f'<camera name="{CAMERA_NAME}" pos="{robot.camera_x:.6g} 0 {robot.camera_height:.6g}" '
-        f'xyaxes="{" ".join(f"{v:.9g}" for v in (*x_axis, *y_axis))}" '
-        f'fovy="{math.degrees(camera.vertical_fov):.9g}"/>'
-    )
+    camera_xml = ''
+    for mount in robot.cameras():
+        link = yaw_matrix(mount.yaw) @ pitch_matrix(mount.pitch)
+        # MuJoCo cameras look along -z with +y up: x = -y_link, y = z_link.
+        x_axis, y_axis = -link[:, 1], link[:, 2]
+        camera_xml += (
+            f'<camera name="{camera_name(mount)}" '
+            f'pos="{mount.x:.6g} {mount.y:.6g} {mount.z:.6g}" '
+            f'xyaxes="{" ".join(f"{v:.9g}" for v in (*x_axis, *y_axis))}" '
+            f'fovy="{math.degrees(camera.vertical_fov):.9g}"/>'
+        )
     # The camera belongs to the chassis body, not to the first wheel.
     body = robot.mjcf(world.start)
     body = body[: -len('</body>')] + camera_xml + '</body>'
@@ -323,7 +390,8 @@ def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
 class RendererDepth:
     """Depth from `mujoco.Renderer` (OpenGL): needs MUJOCO_GL=egl or osmesa set before import."""
 
-    def __init__(self, model: mujoco.MjModel, camera: CameraModel) -> None:
+    def __init__(self, model: mujoco.MjModel, camera: CameraModel, name: str = CAMERA_NAME) -> None:
+        self._name = name
         try:
             self._renderer = mujoco.Renderer(model, camera.height, camera.width)
         except (mujoco.FatalError, AttributeError, RuntimeError, ImportError) as err:
@@ -338,7 +406,7 @@ class RendererDepth:
         self._far = 0.999 * model.vis.map.zfar * model.stat.extent
 
     def depth(self, data: mujoco.MjData) -> npt.NDArray[np.float64]:
-        self._renderer.update_scene(data, camera=CAMERA_NAME, scene_option=self._option)
+        self._renderer.update_scene(data, camera=self._name, scene_option=self._option)
         depth: npt.NDArray[np.float64] = self._renderer.render().astype(np.float64)
         depth[depth >= self._far] = np.nan
         return depth
@@ -359,7 +427,12 @@ class Simulation:
         self.robot = config.robot
         self.lidar_profile = lidar_profile(config.lidar)
         self.camera_profile = camera_profile(config.camera)
-        self.camera = self.camera_profile.model(*config.resolution)
+        self.lidar_mounts: tuple[LidarMount, ...] = self.robot.lidars()
+        self.camera_mounts: tuple[CameraMount, ...] = self.robot.cameras()
+        model = self.camera_profile.model(*config.resolution)
+        # One pinhole model per camera, in that camera's optical frame.
+        self.cameras = [replace(model, frame_id=mount.frame) for mount in self.camera_mounts]
+        self.camera = self.cameras[0]
         self.mjcf = build_mjcf(self.world, self.robot, config)
         try:
             self.model = mujoco.MjModel.from_xml_string(self.mjcf)
@@ -389,7 +462,10 @@ class Simulation:
         self._depth_fan = RayFan(
             rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
         )
-        self._renderer = self._make_renderer(config.depth_backend)
+        self._renderers = [
+            self._make_renderer(config.depth_backend, camera, camera_name(mount))
+            for camera, mount in zip(self.cameras, self.camera_mounts, strict=True)
+        ]
         self.truth = TruthScanner(
             self.world.obstacles,
             self.lidar_profile.grid,
@@ -400,18 +476,29 @@ class Simulation:
         )
         self.fell_ns: int | None = None  # stamp of the state sample that found the base fallen
         self._rest_z = 0.0
-        lidar_seed, depth_seed = np.random.SeedSequence(config.seed).spawn(2)
-        self._lidar_rng = np.random.default_rng(lidar_seed)
-        self._depth_rng = np.random.default_rng(depth_seed)
+        lidar_seed, depth_seed, *extra = np.random.SeedSequence(config.seed).spawn(
+            len(self.lidar_mounts) + len(self.camera_mounts)
+        )
+        # The first LiDAR and camera draw as the one-sensor robot's; the others their own.
+        self._lidar_rngs = [
+            np.random.default_rng(seed)
+            for seed in (lidar_seed, *extra[: len(self.lidar_mounts) - 1])
+        ]
+        self._depth_rngs = [
+            np.random.default_rng(seed)
+            for seed in (depth_seed, *extra[len(self.lidar_mounts) - 1 :])
+        ]
         self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
         self._settle()
 
-    def _make_renderer(self, backend: DepthBackend) -> RendererDepth | None:
+    def _make_renderer(
+        self, backend: DepthBackend, camera: CameraModel, name: str
+    ) -> RendererDepth | None:
         if backend is DepthBackend.RENDERER:
-            return RendererDepth(self.model, self.camera)
+            return RendererDepth(self.model, camera, name)
         if backend is DepthBackend.AUTO and os.environ.get('MUJOCO_GL') in HEADLESS_BACKENDS:
             try:
-                return RendererDepth(self.model, self.camera)
+                return RendererDepth(self.model, camera, name)
             except SimError:
                 return None  # the same depth by ray casting, only slower
         return None
@@ -450,16 +537,19 @@ class Simulation:
             float(position[0]), float(position[1]), math.atan2(rotation[1, 0], rotation[0, 0])
         )
 
-    def lidar_pose(self) -> tuple[Matrix, Matrix]:
+    def lidar_pose(self, lidar: int = 0) -> tuple[Matrix, Matrix]:
+        """Origin and rotation (laser -> world) of the robot's LiDAR number `lidar`."""
+        mount = self.lidar_mounts[lidar]
         position, rotation = self.base_pose()
-        offset = np.array([self.robot.lidar_x, 0.0, self.robot.lidar_height])
-        return position + rotation @ offset, rotation @ yaw_matrix(self.robot.lidar_yaw)
+        offset = np.array([mount.x, mount.y, mount.z])
+        return position + rotation @ offset, rotation @ yaw_matrix(mount.yaw)
 
-    def camera_pose(self) -> tuple[Matrix, Matrix]:
-        """Optical-frame origin and rotation (optical -> world)."""
+    def camera_pose(self, camera: int = 0) -> tuple[Matrix, Matrix]:
+        """Optical-frame origin and rotation (optical -> world) of camera number `camera`."""
+        mount = self.camera_mounts[camera]
         position, rotation = self.base_pose()
-        offset = np.array([self.robot.camera_x, 0.0, self.robot.camera_height])
-        link = rotation @ pitch_matrix(self.robot.camera_pitch)
+        offset = np.array([mount.x, mount.y, mount.z])
+        link = rotation @ yaw_matrix(mount.yaw) @ pitch_matrix(mount.pitch)
         return position + rotation @ offset, link @ LINK_TO_OPTICAL
 
     def set_command(self, v: float, omega: float) -> None:
@@ -479,13 +569,14 @@ class Simulation:
 
     # ------------------------------------------------------------ sensing
 
-    def lidar_frame(self) -> LidarFrame:
+    def lidar_frame(self, lidar: int = 0) -> LidarFrame:
         """Every beam cast now, at one instant (time_increment 0); `run` sweeps instead."""
-        origin, rotation = self.lidar_pose()
+        mount = self.lidar_mounts[lidar]
+        origin, rotation = self.lidar_pose(lidar)
         distances, _ = self._lidar_fan.cast(self.model, self.data, origin, rotation)
         profile = self.lidar_profile
         noise = self.config.lidar_noise if self.config.noise else None
-        ranges = lidar_ranges(distances, profile, noise, self._lidar_rng)
+        ranges = lidar_ranges(distances, profile, noise, self._lidar_rngs[lidar])
         stamp = self.stamp_ns
         scan = Scan(
             angle_min=profile.angle_min,
@@ -495,7 +586,7 @@ class Simulation:
             range_max=profile.range_max,
             ranges=ranges,
             scan_time=1.0 / profile.rate,
-            frame_id=LASER_FRAME,
+            frame_id=mount.frame,
             stamp_ns=stamp,
         )
         heading = math.atan2(rotation[1, 0], rotation[0, 0])
@@ -506,11 +597,14 @@ class Simulation:
             truth,
             self.true_pose(),
             (float(origin[0]), float(origin[1]), float(origin[2])),
+            source=mount.source,
+            heading=heading,
         )
 
-    def _start_sweep(self) -> _Sweep:
-        origin, rotation = self.lidar_pose()
+    def _start_sweep(self, lidar: int = 0) -> _Sweep:
+        origin, rotation = self.lidar_pose(lidar)
         return _Sweep(
+            lidar,
             self.stamp_ns,
             self.true_pose(),
             (float(origin[0]), float(origin[1]), float(origin[2])),
@@ -520,14 +614,15 @@ class Simulation:
 
     def _cast_chunk(self, sweep: _Sweep, index: int) -> None:
         fan, beams = self._lidar_chunks[index]
-        origin, rotation = self.lidar_pose()
+        origin, rotation = self.lidar_pose(sweep.lidar)
         distances, _ = fan.cast(self.model, self.data, origin, rotation)
         sweep.distances[beams] = distances
 
     def _finish_sweep(self, sweep: _Sweep) -> LidarFrame:
         profile = self.lidar_profile
+        mount = self.lidar_mounts[sweep.lidar]
         noise = self.config.lidar_noise if self.config.noise else None
-        ranges = lidar_ranges(sweep.distances, profile, noise, self._lidar_rng)
+        ranges = lidar_ranges(sweep.distances, profile, noise, self._lidar_rngs[sweep.lidar])
         scan = Scan(
             angle_min=profile.angle_min,
             angle_max=profile.angle_max,
@@ -537,26 +632,38 @@ class Simulation:
             ranges=ranges,
             time_increment=self.lidar_time_increment,
             scan_time=1.0 / profile.rate,
-            frame_id=LASER_FRAME,
+            frame_id=mount.frame,
             stamp_ns=sweep.stamp_ns,
         )
         x, y, _ = sweep.origin
         # The truth is one instant's: the stamp's, with no sweep time.
         truth = scan.with_ranges(self.truth.scan(x, y, sweep.heading), time_increment=0.0)
-        return LidarFrame(sweep.stamp_ns, scan, truth, sweep.pose, sweep.origin, self.stamp_ns)
+        return LidarFrame(
+            sweep.stamp_ns,
+            scan,
+            truth,
+            sweep.pose,
+            sweep.origin,
+            self.stamp_ns,
+            source=mount.source,
+            heading=sweep.heading,
+        )
 
-    def true_depth(self) -> npt.NDArray[np.float64]:
+    def true_depth(self, camera: int = 0) -> npt.NDArray[np.float64]:
         """Depth along the optical axis of every pixel, metres, NaN where nothing is hit."""
-        if self._renderer is not None:
-            return self._renderer.depth(self.data)
-        origin, rotation = self.camera_pose()
+        renderer = self._renderers[camera]
+        if renderer is not None:
+            return renderer.depth(self.data)
+        origin, rotation = self.camera_pose(camera)
         distances, _ = self._depth_fan.cast(self.model, self.data, origin, rotation)
         return distances.reshape(self.camera.height, self.camera.width) * self._z_of_ray
 
-    def depth_frame(self) -> DepthFrame:
+    def depth_frame(self, camera: int = 0) -> DepthFrame:
         noise = self.config.depth_noise if self.config.noise else None
-        image = depth_image(self.true_depth(), self.camera_profile, noise, self._depth_rng)
-        return DepthFrame(self.stamp_ns, image, self.camera)
+        rng = self._depth_rngs[camera]
+        image = depth_image(self.true_depth(camera), self.camera_profile, noise, rng)
+        source = self.camera_mounts[camera].source
+        return DepthFrame(self.stamp_ns, image, self.cameras[camera], source=source)
 
     def contacts(self) -> list[Contact]:
         """Contacts between the robot and anything but the floor, now."""
@@ -684,21 +791,24 @@ class Simulation:
 
         latest: list[DepthFrame] = []
         latency = round(self.config.depth_latency / dt)
+        stagger = self.config.sensor_stagger
 
-        def expose(index: int) -> None:
-            frame = self.depth_frame()
+        def expose(camera: int, index: int) -> None:
+            frame = self.depth_frame(camera)
             delivered = replace(frame, delivered_ns=frame.stamp_ns + latency * self._step_ns)
-            at(self._step + latency, _DELIVER_DEPTH, lambda: deliver_depth(delivered))
-            schedule_exposure(index + 1)
+            at(self._step + latency, _DELIVER_DEPTH, lambda: deliver_depth(camera, delivered))
+            schedule_exposure(camera, index + 1)
 
-        def deliver_depth(frame: DepthFrame) -> None:
-            latest[:] = [frame]
+        def deliver_depth(camera: int, frame: DepthFrame) -> None:
+            if camera == 0:
+                latest[:] = [frame]
             sink.on_depth(frame)
 
-        def schedule_exposure(index: int) -> None:
-            step = step_of(self.config.depth_phase + index / self.depth_rate)
+        def schedule_exposure(camera: int, index: int) -> None:
+            phase = self.config.depth_phase + camera * stagger / self.depth_rate
+            step = step_of(phase + index / self.depth_rate)
             if step + latency <= end:  # an image delivered after the run is not taken
-                at(step, _EXPOSE, lambda: expose(index))
+                at(step, _EXPOSE, lambda: expose(camera, index))
 
         period = 1.0 / self.lidar_profile.rate
         increment = self.lidar_time_increment
@@ -706,31 +816,33 @@ class Simulation:
             round(0.5 * (beams[0] + beams[-1]) * increment / dt) for _, beams in self._lidar_chunks
         ]
 
-        def sweep(index: int) -> None:
-            current = self._start_sweep()
+        def sweep(lidar: int, index: int) -> None:
+            current = self._start_sweep(lidar)
             for chunk, offset in enumerate(chunk_offsets):
                 at(self._step + offset, _BEAMS, functools.partial(self._cast_chunk, current, chunk))
             at(self._step + round(period / dt), _DELIVER_SCAN, lambda: deliver_scan(current))
-            schedule_sweep(index + 1)
+            schedule_sweep(lidar, index + 1)
 
         def deliver_scan(current: _Sweep) -> None:
             frame = self._finish_sweep(current)
             sink.on_lidar(frame)
-            if controller is not None:
+            if controller is not None and current.lidar == 0:
                 depth = latest[0].depth if latest else None
                 observation = Observation(
                     self.time, frame.scan, depth, self.camera, self.odometry.pose
                 )
                 self.set_command(*controller(observation))
 
-        def schedule_sweep(index: int) -> None:
-            step = step_of(self.config.lidar_phase + index * period)
+        def schedule_sweep(lidar: int, index: int) -> None:
+            step = step_of(self.config.lidar_phase + (lidar * stagger + index) * period)
             if step + round(period / dt) <= end:  # a sweep delivered after the run is not cast
-                at(step, _SWEEP, lambda: sweep(index))
+                at(step, _SWEEP, lambda: sweep(lidar, index))
 
         at(start, _STATE, lambda: state(0))
-        schedule_exposure(0)
-        schedule_sweep(0)
+        for camera in range(len(self.camera_mounts)):
+            schedule_exposure(camera, 0)
+        for lidar in range(len(self.lidar_mounts)):
+            schedule_sweep(lidar, 0)
         try:
             while events:
                 step, _, _, action = heapq.heappop(events)
@@ -743,5 +855,6 @@ class Simulation:
             report.finish()
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
+        for renderer in self._renderers:
+            if renderer is not None:
+                renderer.close()
