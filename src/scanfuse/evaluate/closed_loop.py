@@ -73,6 +73,7 @@ class TrialSpec:
     goal: tuple[float, float]
     time_limit: float = 45.0  # simulated seconds
     waypoints: tuple[tuple[float, float], ...] = ()  # passed in order before the goal
+    reverse_waypoints: int = 0  # the first this many waypoints are reached backwards
 
     @property
     def memory(self) -> bool:
@@ -197,6 +198,12 @@ class Navigator:
     radius: float
     lidar_x: float = 0.0
     waypoints: list[tuple[float, float]] = field(default_factory=list)  # odometry frame
+    lidar_y: float = 0.0  # the scan's frame in base_link: x, y (metres), yaw (radians)
+    lidar_yaw: float = 0.0
+    # The first this many waypoints are reached driving backwards (backing out of a dead
+    # end): the path is followed rear first and the stop/slow zones guard the rear.
+    reverse_waypoints: int = 0
+    reverse_speed: float = 0.25
     waypoint_tolerance: float = 0.3
     max_speed: float = 0.35
     max_turn: float = 1.2
@@ -210,27 +217,44 @@ class Navigator:
     costmap: Costmap = field(init=False)
     path: list[tuple[float, float]] = field(default_factory=list)
     done: bool = False
+    last_v: float = 0.0  # the speed last commanded, m/s (negative: reversing)
     _steps: int = 0
 
     def __post_init__(self) -> None:
         self.zones = SafetyZones(self.radius)
         self.costmap = Costmap(self.spec)
 
+    @property
+    def reversing(self) -> bool:
+        """Heading for a waypoint that is reached backwards."""
+        return self.reverse_waypoints > 0 and bool(self.waypoints)
+
     def step(
         self, scan: Scan, pose: Pose2D, scan_pose: Pose2D | None = None
     ) -> tuple[float, float]:
         """(v, omega) for the scan just received, with the robot at `pose` (odometry frame)
         now and at `scan_pose` (default `pose`) at the scan's stamp."""
+        v, omega = self._step(scan, pose, scan_pose)
+        self.last_v = v
+        return v, omega
+
+    def _step(self, scan: Scan, pose: Pose2D, scan_pose: Pose2D | None) -> tuple[float, float]:
         points = self._points_in_robot(scan)
         at = scan_pose or pose
         c, s = math.cos(at.yaw), math.sin(at.yaw)
-        self.costmap.update(scan, at.x + c * self.lidar_x, at.y + s * self.lidar_x, at.yaw)
+        self.costmap.update(
+            scan,
+            at.x + c * self.lidar_x - s * self.lidar_y,
+            at.y + s * self.lidar_x + c * self.lidar_y,
+            at.yaw + self.lidar_yaw,
+        )
         self.costmap.clear_disk(pose.x, pose.y, self.radius)
         if self.waypoints and (
             math.hypot(self.waypoints[0][0] - pose.x, self.waypoints[0][1] - pose.y)
             <= self.waypoint_tolerance
         ):
             self.waypoints.pop(0)
+            self.reverse_waypoints = max(0, self.reverse_waypoints - 1)
             self.path = []
         heading = self.target()
         to_goal = math.hypot(heading[0] - pose.x, heading[1] - pose.y)
@@ -243,12 +267,18 @@ class Navigator:
         if not self.path:
             return 0.0, 0.4  # nothing known leads there: turn and look
         target = self._target(pose)
-        error = math.atan2(target[1] - pose.y, target[0] - pose.x) - pose.yaw
+        reversing = self.reversing
+        # Backwards, the rear leads: steer the rear towards the target, guard the rear.
+        facing = pose.yaw + math.pi if reversing else pose.yaw
+        error = math.atan2(target[1] - pose.y, target[0] - pose.x) - facing
         error = math.atan2(math.sin(error), math.cos(error))
         omega = max(-self.max_turn, min(self.max_turn, 2.0 * error))
-        v = self.max_speed * max(0.0, math.cos(error)) ** 4 if abs(error) < 0.8 else 0.0
+        speed = self.reverse_speed if reversing else self.max_speed
+        v = speed * max(0.0, math.cos(error)) ** 4 if abs(error) < 0.8 else 0.0
         if not self.waypoints:
             v = min(v, 0.8 * to_goal + 0.05)
+        if reversing:
+            return -self.zones.limit(v, -points), omega
         return self.zones.limit(v, points), omega
 
     def target(self) -> tuple[float, float]:
@@ -267,9 +297,11 @@ class Navigator:
     def _points_in_robot(self, scan: Scan) -> npt.NDArray[np.float64]:
         ranges = scan.ranges.astype(np.float64)
         usable = np.isfinite(ranges) & (ranges <= self.mark_range)
-        angles = scan.angles()[usable]
+        angles = scan.angles()[usable] + self.lidar_yaw
         near = np.maximum(ranges[usable], 0.0)
-        return np.column_stack([self.lidar_x + near * np.cos(angles), near * np.sin(angles)])
+        return np.column_stack(
+            [self.lidar_x + near * np.cos(angles), self.lidar_y + near * np.sin(angles)]
+        )
 
     def _plan(self, pose: Pose2D) -> None:
         # A path kept clear of the stop zone first (as Nav2's inflation cost keeps plans off
@@ -371,6 +403,7 @@ class TrialOutcome:
     planned_length: float  # length of the last plan, metres
     fell: bool = False  # the base left the floor plane (a drop-off)
     fall_time: float = float('nan')  # simulated seconds at the first fallen state sample
+    reversing_contact: bool = False  # the first contact came while driving backwards
 
 
 @dataclass
@@ -411,7 +444,7 @@ class StreamFeed:
 
     def on_depth(self, frame: DepthFrame) -> None:
         for stream in self.streams:
-            self._emit(stream, stream.add_depth(frame, OPTICAL_FRAME))
+            self._emit(stream, stream.add_depth(frame, frame.camera.frame_id or OPTICAL_FRAME))
 
     def on_lidar(self, frame: LidarFrame) -> None:
         for stream in self.streams:
@@ -460,7 +493,12 @@ def drive(
         sim.robot.body_radius,
         lidar_x=sim.robot.lidar_x,
         waypoints=[world_to_odom(world.start, *point) for point in trial.waypoints],
+        lidar_y=sim.robot.lidar_y,
+        lidar_yaw=sim.robot.lidar_yaw,
+        reverse_waypoints=trial.reverse_waypoints,
     )
+    # The command in force when the first contact was found (negative: reversing).
+    contact_v: list[float] = []
 
     def released(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
         if on_scan is not None:
@@ -477,6 +515,8 @@ def drive(
     log = feed.log
 
     def stop() -> bool:
+        if log.contacts and not contact_v:
+            contact_v.append(navigator.last_v)
         if navigator.done:
             return True
         if sim.fell_ns is not None and sim.stamp_ns >= sim.fell_ns + round(AFTER_FALL * 1e9):
@@ -510,6 +550,7 @@ def drive(
         fall_time=(
             (sim.fell_ns - log_start_ns(sim)) / 1e9 if sim.fell_ns is not None else float('nan')
         ),
+        reversing_contact=bool(contact_v) and contact_v[0] < 0.0,
     )
     return outcome, log
 

@@ -17,6 +17,8 @@ from scanfuse.evaluate.metrics import SlotTruth, near_footprint_slots
 from scanfuse.sim.truth import TruthScanner
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy.typing as npt
 
     from scanfuse.camera import CameraModel
@@ -45,7 +47,10 @@ class SlotTruthBuilder:
         view_range: float = VIEW_RANGE,
         drops: tuple[Drop, ...] = (),
         footprint_radius: float | None = None,
+        more_cameras: Sequence[tuple[CameraModel, Extrinsics]] = (),
     ) -> None:
+        """`more_cameras`: other cameras (each with the same LiDAR in its extrinsics) whose
+        view counts as in view too (a robot with a rear camera)."""
         self.grid = grid
         lidar_height = extrinsics.base_to_laser.translation[2]
         in_slab = [
@@ -86,9 +91,16 @@ class SlotTruthBuilder:
         ]
         self.camera = camera
         self.view_range = view_range
-        # laser frame -> camera optical frame, to project truth points into the image.
-        self._laser_to_optical = extrinsics.laser_to_camera_optical.inverse()
-        self._camera_in_laser = np.asarray(extrinsics.laser_to_camera_optical.translation)
+        # Per camera: laser frame -> optical frame, to project truth points into the image,
+        # and the camera's origin in the laser frame.
+        self._views = [
+            (
+                model,
+                view.laser_to_camera_optical.inverse(),
+                np.asarray(view.laser_to_camera_optical.translation),
+            )
+            for model, view in ((camera, extrinsics), *more_cameras)
+        ]
         self._lidar_height = lidar_height
         self._lidar_yaw = extrinsics.base_to_laser.rpy()[2]
         # The round footprint about the base's origin, in the LiDAR's frame (all-around recall).
@@ -133,26 +145,28 @@ class SlotTruthBuilder:
     def _visible(
         self, ranges: npt.NDArray[np.float32], tops: npt.NDArray[np.float64]
     ) -> npt.NDArray[np.bool_]:
-        """Slots whose obstacle top (at the truth range) projects into the image within range."""
+        """Slots whose obstacle top (at the truth range) projects into an image within range."""
         angles = self.grid.angles()
         finite = np.where(np.isfinite(ranges), ranges, 0.0).astype(np.float64)
         points = np.column_stack(
             [finite * np.cos(angles), finite * np.sin(angles), tops - self._lidar_height]
         )
-        optical = self._laser_to_optical.apply(points)
-        z = optical[:, 2]
-        with np.errstate(divide='ignore', invalid='ignore'):
-            u = self.camera.fx * optical[:, 0] / z + self.camera.cx
-            v = self.camera.fy * optical[:, 1] / z + self.camera.cy
-        horizontal = np.hypot(
-            points[:, 0] - self._camera_in_laser[0], points[:, 1] - self._camera_in_laser[1]
-        )
-        visible: npt.NDArray[np.bool_] = (
-            (z > 0.0)
-            & (u >= -0.5)
-            & (u <= self.camera.width - 0.5)
-            & (v >= -0.5)
-            & (v <= self.camera.height - 0.5)
-            & (horizontal <= self.view_range)
-        )
+        visible: npt.NDArray[np.bool_] = np.zeros(len(points), dtype=bool)
+        for camera, laser_to_optical, camera_in_laser in self._views:
+            optical = laser_to_optical.apply(points)
+            z = optical[:, 2]
+            with np.errstate(divide='ignore', invalid='ignore'):
+                u = camera.fx * optical[:, 0] / z + camera.cx
+                v = camera.fy * optical[:, 1] / z + camera.cy
+            horizontal = np.hypot(
+                points[:, 0] - camera_in_laser[0], points[:, 1] - camera_in_laser[1]
+            )
+            visible |= (
+                (z > 0.0)
+                & (u >= -0.5)
+                & (u <= camera.width - 0.5)
+                & (v >= -0.5)
+                & (v <= camera.height - 0.5)
+                & (horizontal <= self.view_range)
+            )
         return visible

@@ -22,6 +22,11 @@ The row methods run with both resamplers (`-linear`, Algorithm 3, and
 Every fusing method runs in its own `FusionStream`, fed as the node is fed (`MethodStream`):
 pairing, pass-through and motion compensation are the stream's. `lidar` is the driver's
 scan as it arrives, with no stream (a robot without scanfuse: not de-skewed either).
+
+On a robot with several named sources (the simulator's `amr`: two LiDARs, two cameras),
+`lidar` is its LiDARs merged by a `FusionStream` that is given no camera (the 360-degree
+scan a laser merger makes, without obstacle memory), and the fusing methods take every
+source.
 """
 
 from __future__ import annotations
@@ -191,7 +196,12 @@ class MethodStream:
         self.spec = method_spec(name)
         self.config = self.spec.config(base, camera)
         self.stream: FusionStream[LidarFrame] | None = None
-        if self.spec.fuses:
+        # Several LiDARs: even the camera-less method merges them in a stream.
+        merges = len(base.sources.lidars) > 1
+        self.takes_depth = self.spec.fuses
+        if self.spec.fuses or merges:
+            if not self.spec.fuses:
+                self.config = base.with_changes(memory=False)
             # The node's defaults: pair with the frames already received, release at once.
             self.stream = FusionStream(self.config, pair_wait=0.0)
             self.stream.add_transforms(transforms, static=True)
@@ -206,15 +216,21 @@ class MethodStream:
     def add_depth(self, frame: DepthFrame, frame_id: str) -> list[tuple[LidarFrame, Scan]]:
         if self.stream is None:
             return []
-        self.stream.add_camera_info(frame.camera)
+        if not self.takes_depth:
+            return self._out(self.stream.tick(frame.arrival_ns))
+        source = frame.source or None  # the camera's name on a robot with several
+        self.stream.add_camera_info(frame.camera, source)
         return self._out(
-            self.stream.add_depth(frame.stamp_ns, frame.depth, frame.arrival_ns, frame_id)
+            self.stream.add_depth(
+                frame.stamp_ns, frame.depth, frame.arrival_ns, frame_id, source=source
+            )
         )
 
     def add_scan(self, frame: LidarFrame) -> list[tuple[LidarFrame, Scan]]:
         if self.stream is None:
             return [(frame, frame.scan)]
-        return self._out(self.stream.add_scan(frame.scan, frame, frame.arrival_ns))
+        source = frame.source or None  # the first LiDAR's scans make the output scans
+        return self._out(self.stream.add_scan(frame.scan, frame, frame.arrival_ns, source))
 
     def finish(self) -> list[tuple[LidarFrame, Scan]]:
         return [] if self.stream is None else self._out(self.stream.finish())

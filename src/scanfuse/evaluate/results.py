@@ -32,6 +32,7 @@ class ClosedLoopSummary:
     mean_path_length: float  # metres, trials that reached the goal
     mean_time: float  # simulated seconds, trials that reached the goal
     falls: int = 0  # trials in which the base left the floor plane (drop-off worlds)
+    reversing_collisions: int = 0  # trials whose first contact came while driving backwards
 
     @classmethod
     def of(cls, outcomes: list[TrialOutcome]) -> ClosedLoopSummary:
@@ -43,6 +44,7 @@ class ClosedLoopSummary:
             mean_path_length=_mean([o.path_length for o in arrived]),
             mean_time=_mean([o.duration for o in arrived]),
             falls=sum(o.fell for o in outcomes),
+            reversing_collisions=sum(o.collided and o.reversing_contact for o in outcomes),
         )
 
 
@@ -78,6 +80,23 @@ class MethodResult:
 
 
 @dataclass(frozen=True)
+class RobotResult:
+    """One method on another robot (the two-LiDAR, two-camera `amr`): its scans and trials.
+
+    `scan.recall` counts the low-obstacle slots in view of either camera, `scan.recall_near`
+    those within 1 m of the footprint in any direction; `closed_loop.reversing_collisions`
+    the trials whose first contact came while the robot was backing out.
+    """
+
+    robot: str
+    method: str
+    description: str
+    scan: ScanMetrics
+    closed_loop: ClosedLoopSummary | None
+    trials: list[TrialOutcome] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
 class EvaluationResult:
     """One evaluation run: settings, per-method results, every trial, and the files written."""
 
@@ -86,6 +105,7 @@ class EvaluationResult:
     trials: list[TrialOutcome]
     files: list[str] = field(default_factory=list)
     version: int = RESULTS_VERSION
+    robots: dict[str, RobotResult] = field(default_factory=dict)  # keyed 'amr/<method>'
 
     def headline(self) -> dict[str, dict[str, float]]:
         """The numbers the report leads with, per method."""
@@ -109,6 +129,14 @@ class EvaluationResult:
                 row['reached'] = result.closed_loop.reached
                 row['falls'] = result.closed_loop.falls
             table[name] = row
+        for key, robot in self.robots.items():
+            row = {'recall': robot.scan.recall, 'recall_near': robot.scan.recall_near}
+            if robot.closed_loop is not None:
+                row['trials'] = robot.closed_loop.trials
+                row['collisions'] = robot.closed_loop.collisions
+                row['reversing_collisions'] = robot.closed_loop.reversing_collisions
+                row['reached'] = robot.closed_loop.reached
+            table[key] = row
         return table
 
     def compare(self, other: EvaluationResult) -> dict[str, dict[str, float]]:
@@ -145,6 +173,9 @@ class EvaluationResult:
                 trials=[TrialOutcome(**_none_to_nan(trial)) for trial in data['trials']],
                 files=list(data['files']),
                 version=version,
+                robots={
+                    key: _robot_from_dict(value) for key, value in data.get('robots', {}).items()
+                },
             )
         except (KeyError, TypeError, json.JSONDecodeError) as err:
             msg = f'not a scanfuse results.json ({err}); write one with `scanfuse evaluate`'
@@ -157,6 +188,18 @@ class EvaluationResult:
 
 def _scan_from_dict(data: dict[str, Any]) -> ScanMetrics:
     return ScanMetrics(**_none_to_nan(data))
+
+
+def _robot_from_dict(data: dict[str, Any]) -> RobotResult:
+    loop = data['closed_loop']
+    return RobotResult(
+        robot=data['robot'],
+        method=data['method'],
+        description=data['description'],
+        scan=_scan_from_dict(data['scan']),
+        closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
+        trials=[TrialOutcome(**_none_to_nan(trial)) for trial in data.get('trials', [])],
+    )
 
 
 def _method_from_dict(data: dict[str, Any]) -> MethodResult:

@@ -5,7 +5,9 @@ Steps: run every trial with every closed-loop method; during the `obstacle` runs
 every method's own `FusionStream` the same sensor events and score each scan it
 releases against the ground truth at the scan's stamp, and build each method's map;
 run the scripted turning trials the same way; keep a few frames for the figures;
-write results. All of it in real sensor time (`scanfuse.sim.simulation`).
+run the two-LiDAR, two-camera AMR's trials (`amr_trials`: backing out of a dead end past a
+low box) with its own methods, scored on the `obstacle` runs' 360-degree fused scans; write
+results. All of it in real sensor time (`scanfuse.sim.simulation`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,13 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
+from scanfuse.evaluate.amr_trials import (
+    AMR_FAMILIES,
+    AMR_LIDAR,
+    AMR_METHODS,
+    AMR_TIME_LIMIT,
+    amr_trial,
+)
 from scanfuse.evaluate.closed_loop import (
     CLOSED_LOOP_TIME_LIMIT,
     TURNING_TRIALS,
@@ -42,7 +51,12 @@ from scanfuse.evaluate.mapping import (
 from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
 from scanfuse.evaluate.metrics import ScanMetrics, ScanTally
-from scanfuse.evaluate.results import ClosedLoopSummary, EvaluationResult, MethodResult
+from scanfuse.evaluate.results import (
+    ClosedLoopSummary,
+    EvaluationResult,
+    MethodResult,
+    RobotResult,
+)
 from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics
 
@@ -91,6 +105,11 @@ class EvaluationSettings:
     depth_latency: float = 0.040  # seconds from exposure to delivery
     lidar_chunks: int = 12  # ray casts per sweep
     odometry_rate: float = 50.0  # Hz
+    # The AMR (two 270-degree LiDARs, front and rear cameras): its families, seeded variants
+    # per family, and methods (`lidar`: the LiDARs merged; `obstacle`: every source).
+    amr: tuple[str, ...] = tuple(AMR_FAMILIES)
+    amr_trials: int = 5
+    amr_methods: tuple[str, ...] = AMR_METHODS
 
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
@@ -102,6 +121,7 @@ class EvaluationSettings:
             resolution=(256, 144),
             time_limit=20.0,
             mapped_trials=3,
+            amr_trials=1,
         )
         return replace(base, **changes)
 
@@ -114,17 +134,26 @@ def base_config(sim: Simulation) -> FusionConfig:
 
 
 def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings) -> Simulation:
-    """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen."""
+    """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen.
+
+    An AMR trial's robot is the AMR with its own LiDARs; every other trial's the default.
+    """
+    from scanfuse.sim.robot import AMR, RobotSpec  # noqa: PLC0415
     from scanfuse.sim.simulation import SimConfig, Simulation  # noqa: PLC0415
 
+    robot, lidar = RobotSpec(), settings.lidar
     if isinstance(trial, TurningSpec):
         world, seed = turning_world(), 0
+    elif trial.world in AMR_FAMILIES:
+        world, seed = amr_trial(trial.world, trial.seed).world, trial.seed
+        robot, lidar = AMR, AMR_LIDAR
     else:
         world, seed = evaluation_world(trial.world, trial.seed), trial.seed
     config = SimConfig(
         world=world.name,
         seed=seed,
-        lidar=settings.lidar,
+        robot=robot,
+        lidar=lidar,
         resolution=settings.resolution,
         depth_rate=settings.depth_rate,
         depth_latency=settings.depth_latency,
@@ -171,7 +200,9 @@ class Snapshot:
     scans: dict[str, Scan]
 
 
-Job = tuple[int | str, str]  # (index into the trials or a turning trial's name, method)
+# (index into the trials, a turning trial's name, or 'amr:<index into the AMR trials>', method)
+Job = tuple[int | str, str]
+AMR_JOB = 'amr:'
 
 
 @dataclass
@@ -188,6 +219,8 @@ class EvaluationPart:
     stream_counts: dict[str, dict[str, int]]
     costmaps: dict[str, CostmapSet]
     drop_tallies: dict[str, DropTally]
+    amr_tallies: dict[str, ScanTally] = field(default_factory=dict)
+    amr_outcomes: list[TrialOutcome] = field(default_factory=list)
 
 
 @dataclass
@@ -231,11 +264,22 @@ class Evaluation:
             if name not in TURNING_TRIALS:
                 msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
                 raise ConfigError(msg)
+        for name in settings.amr:
+            if name not in AMR_FAMILIES:
+                msg = f'unknown AMR trial {name!r}; choose from {", ".join(AMR_FAMILIES)}'
+                raise ConfigError(msg)
+        for name in settings.amr_methods:
+            if name not in AMR_METHODS:
+                msg = f'unknown AMR method {name!r}; choose from {", ".join(AMR_METHODS)}'
+                raise ConfigError(msg)
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
         if 'memory' in settings.worlds:
             self.trials += memory_specs(settings.memory, settings.memory_trials)
+        self.amr_specs = amr_specs(settings.amr, settings.amr_trials)
+        self.amr_tallies = {name: ScanTally() for name in settings.amr_methods}
+        self.amr_outcomes: list[TrialOutcome] = []
         self.tallies = {name: ScanTally() for name in settings.methods}
         self.world_tallies: dict[str, dict[str, ScanTally]] = {}
         # False drop slots per method, over the scans of worlds without drop-offs.
@@ -265,6 +309,11 @@ class Evaluation:
             for method in self.settings.closed_loop_methods
         ]
         work += [(name, '') for name in self.settings.turning]
+        work += [
+            (f'{AMR_JOB}{index}', method)
+            for index in range(len(self.amr_specs))
+            for method in self.settings.amr_methods
+        ]
         return work
 
     def run(self, jobs: int = 1) -> None:
@@ -298,7 +347,9 @@ class Evaluation:
 
     def run_job(self, job: Job) -> None:
         key, method = job
-        if isinstance(key, str):
+        if isinstance(key, str) and key.startswith(AMR_JOB):
+            self._amr_trial(self.amr_specs[int(key[len(AMR_JOB) :])], method)
+        elif isinstance(key, str):
             self._turning(TURNING_TRIALS[key])
         else:
             self._trial(self.trials[key], method)
@@ -315,6 +366,8 @@ class Evaluation:
             self.stream_counts,
             self.costmaps,
             self.drop_tallies,
+            self.amr_tallies,
+            self.amr_outcomes,
         )
 
     def merge(self, part: EvaluationPart) -> None:
@@ -343,6 +396,9 @@ class Evaluation:
             total = self.stream_counts.setdefault(name, {})
             for key, value in counts.items():
                 total[key] = total.get(key, 0) + value
+        for name, tally in part.amr_tallies.items():
+            self.amr_tallies[name].merge(tally)
+        self.amr_outcomes += part.amr_outcomes
 
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
@@ -380,6 +436,37 @@ class Evaluation:
             if keep:
                 self.collision_logs[trial.label] = (sim.world, log, outcome, sim.robot.body_radius)
                 self.crash_maps[trial.label] = self._crash_maps(sim, base, log, crash_scans)
+        finally:
+            sim.close()
+
+    def _amr_trial(self, trial: TrialSpec, method: str) -> None:
+        """One AMR trial driven by `method`; the `obstacle` run scores every AMR method."""
+        sim = make_simulation(trial, self.settings)
+        try:
+            base = base_config(sim)
+            transforms = robot_transforms(sim)
+            driver = MethodStream(method, base, sim.camera, transforms)
+            methods = self.settings.amr_methods
+            scoring = method == 'obstacle' or ('obstacle' not in methods and method == methods[0])
+            scorer = _AmrScorer(self, sim, base) if scoring else None
+            # The driver's own scans are scored too: one stream per method.
+            observers = (
+                [
+                    MethodStream(name, base, sim.camera, transforms)
+                    for name in methods
+                    if name != method
+                ]
+                if scorer is not None
+                else []
+            )
+            names = {stream: stream.name for stream in (driver, *observers)}
+
+            def on_scan(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
+                if scorer is not None and stream in names:
+                    scorer.add(names[stream], frame, scan)
+
+            outcome, _ = drive(sim, trial, driver, observers=observers, on_scan=on_scan)
+            self.amr_outcomes.append(outcome)
         finally:
             sim.close()
 
@@ -444,7 +531,18 @@ class Evaluation:
             key: list(value) if isinstance(value, tuple) else value
             for key, value in asdict(self.settings).items()
         }
-        return EvaluationResult(settings, methods, list(self.outcomes), files)
+        robots = {}
+        for name in self.settings.amr_methods:
+            outcomes = [o for o in self.amr_outcomes if o.method == name]
+            robots[f'amr/{name}'] = RobotResult(
+                robot='amr',
+                method=name,
+                description=AMR_DESCRIPTIONS[name],
+                scan=self.amr_tallies[name].summary(),
+                closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
+                trials=outcomes,
+            )
+        return EvaluationResult(settings, methods, list(self.outcomes), files, robots=robots)
 
     def _memory_scan(self, name: str) -> ScanMetrics | None:
         """Scan metrics over the memory trials' scans (None: no memory trial was run)."""
@@ -455,6 +553,85 @@ class Evaluation:
         for group in groups:
             tally.merge(self.world_tallies[group][name])
         return tally.summary()
+
+
+AMR_DESCRIPTIONS = {
+    'lidar': 'both LiDARs merged into one 360-degree scan, no camera',
+    'obstacle': 'both LiDARs, front and rear cameras (obstacle method, memory on)',
+}
+
+
+def amr_specs(families: tuple[str, ...], variants: int) -> list[TrialSpec]:
+    """`variants` seeded trials of each AMR family, family by family."""
+    specs = []
+    for name in families:
+        for seed in range(variants):
+            trial = amr_trial(name, seed)
+            specs.append(
+                TrialSpec(
+                    name,
+                    seed,
+                    trial.goal,
+                    AMR_TIME_LIMIT,
+                    trial.waypoints,
+                    reverse_waypoints=trial.reverse,
+                )
+            )
+    return specs
+
+
+class _AmrScorer:
+    """The AMR's methods on the same scans: recall in view of either camera, all-around.
+
+    Scored on the output grid (360 degrees, in the front LiDAR's frame), against the truth
+    at each scan's stamp from the front LiDAR's true pose.
+    """
+
+    def __init__(self, evaluation: Evaluation, sim: Simulation, base: FusionConfig) -> None:
+        from scanfuse.extras import mounting_transform  # noqa: PLC0415
+        from scanfuse.transforms import BODY_TO_OPTICAL  # noqa: PLC0415
+
+        self.tallies = evaluation.amr_tallies
+        self._names = set(evaluation.settings.amr_methods)
+        self._pending: dict[int, dict[str, Scan]] = {}
+        front = Extrinsics.from_config(base)
+        more = [
+            (
+                camera,
+                Extrinsics(
+                    base_to_laser=front.base_to_laser,
+                    base_to_camera_optical=mounting_transform(source) @ BODY_TO_OPTICAL,
+                ),
+            )
+            for camera, source in zip(sim.cameras[1:], base.sources.cameras[1:], strict=True)
+        ]
+        self._sim, self._base, self._front, self._more = sim, base, front, more
+        self.truths: SlotTruthBuilder | None = None  # on the output grid, from the first scan
+
+    def _truths_for(self, scan: Scan) -> SlotTruthBuilder:
+        sim, base = self._sim, self._base
+        return SlotTruthBuilder(
+            sim.world.obstacles,
+            scan.grid,
+            min_obstacle_height=base.min_obstacle_height,
+            max_obstacle_height=base.max_obstacle_height,
+            range_max=sim.lidar_profile.range_max,
+            camera=sim.camera,
+            extrinsics=self._front,
+            footprint_radius=sim.robot.body_radius,
+            more_cameras=self._more,
+        )
+
+    def add(self, name: str, frame: LidarFrame, scan: Scan) -> None:
+        scans = self._pending.setdefault(frame.stamp_ns, {})
+        scans[name] = scan
+        if len(scans) == len(self._names):
+            del self._pending[frame.stamp_ns]
+            if self.truths is None:
+                self.truths = self._truths_for(scan)
+            truth = self.truths.build(frame)
+            for method, fused in scans.items():
+                self.tallies[method].add(fused.ranges, truth)
 
 
 def _memory_outcomes(outcomes: list[TrialOutcome]) -> list[TrialOutcome]:

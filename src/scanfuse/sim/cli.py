@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.table import Table
 
@@ -79,7 +79,8 @@ def run_simulate(
 ) -> RecordSummary:
     """Record one run of the robot called `robot` (`ROBOTS`); `mounting` changes its first
     sensors' poses (metres, radians); `lidar` None: the robot's own LiDAR model."""
-    spec = replace(robot_spec(robot), **(mounting or {}))
+    changes: dict[str, Any] = dict(mounting or {})
+    spec = replace(robot_spec(robot), **changes)
     config = SimConfig(
         world=world,
         seed=seed,
