@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scanfuse import AngleGrid, InputError, Scan
-from scanfuse.scan import normalized_ranges, to_rep117
+from scanfuse.scan import full_circle, normalized_ranges, to_rep117
 
 
 def make_scan(ranges, **fields):
@@ -93,3 +93,47 @@ def test_to_rep117_maps_out_of_range_to_infinities():
     assert out[1] == 1.0
     assert out[2] == np.inf
     assert np.isnan(out[3])
+
+
+def _scan(angle_min: float, increment: float, count: int) -> Scan:
+    return Scan(
+        angle_min=angle_min,
+        angle_max=angle_min + increment * (count - 1),
+        angle_increment=increment,
+        range_min=0.02,
+        range_max=10.0,
+        ranges=np.arange(1, count + 1, dtype=np.float32),
+        time_increment=1e-5,
+    )
+
+
+def test_full_circle_keeps_a_270_degree_scans_readings_at_their_angles():
+    # A UST-10LX: -135 to +135 degrees in 0.25-degree steps, 1081 readings. Over 360 degrees
+    # that increment makes 1440 slots; -135 degrees is 180 steps after -180.
+    step = math.radians(0.25)
+    scan = _scan(-math.radians(135.0), step, 1081)
+    wide = full_circle(scan)
+    assert wide is not None
+    assert len(wide) == 1440
+    assert wide.angle_min == pytest.approx(-math.pi)
+    assert wide.angle_increment == scan.angle_increment
+    np.testing.assert_array_equal(wide.ranges[180 : 180 + 1081], scan.ranges)
+    assert np.isnan(wide.ranges[:180]).all()
+    assert np.isnan(wide.ranges[180 + 1081 :]).all()
+    np.testing.assert_allclose(wide.angles()[180 : 180 + 1081], scan.angles(), atol=1e-12)
+    assert wide.time_increment == 0.0  # the readings moved: the beam times are not its own
+
+
+def test_full_circle_of_a_clockwise_scan_starts_near_plus_pi():
+    step = math.radians(1.0)
+    scan = _scan(math.radians(90.0), -step, 181)  # +90 down to -90 degrees
+    wide = full_circle(scan)
+    assert wide is not None
+    assert len(wide) == 360
+    assert wide.angle_min == pytest.approx(math.pi)  # 90 steps before +90 degrees, clockwise
+    np.testing.assert_allclose(wide.angles()[90 : 90 + 181], scan.angles(), atol=1e-12)
+
+
+def test_full_circle_leaves_a_360_degree_scan_alone():
+    step = 2 * math.pi / 720
+    assert full_circle(_scan(-math.pi, step, 720)) is None

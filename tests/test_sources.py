@@ -81,6 +81,25 @@ def test_two_lidars_at_opposite_corners_give_one_scan_true_from_the_output_origi
     assert stream.extras.counts.used == {'rear': 1}
 
 
+def test_full_circle_puts_a_270_degree_front_lidar_on_360_degrees_the_rear_one_fills():
+    stream: FusionStream[int] = FusionStream(two_lidars(full_circle=True))
+    fov = math.radians(270)
+    front = lidar_scan((0.3, 0.2), math.pi / 4, 1080, fov, 'front')  # 0.25-degree steps
+    rear = lidar_scan((-0.3, -0.2), -3 * math.pi / 4, 1080, fov, 'rear')
+    stream.add_scan(rear, 0, NS, source='rear')
+    (out,) = stream.add_scan(front, 1, NS + 1)
+    assert out.fused is not None
+    assert len(out.fused) == 1440  # 360 / 0.25
+    truth = square_room_ranges((0.3, 0.2), math.pi / 4, out.fused.angles())
+    assert np.isfinite(out.fused.ranges).all()
+    np.testing.assert_allclose(out.fused.ranges, truth, atol=0.01)
+    # Without the rear LiDAR the front one's 90-degree blind sector stays empty (NaN).
+    alone: FusionStream[int] = FusionStream(two_lidars(full_circle=True))
+    (solo,) = alone.add_scan(front, 1, NS + 1)
+    assert solo.fused is not None
+    assert int(np.isnan(solo.fused.ranges).sum()) == 1440 - 1080
+
+
 def test_a_source_that_never_arrives_is_passed_over_and_counted():
     stream: FusionStream[int] = FusionStream(two_lidars())
     front = lidar_scan((0.3, 0.2), math.pi / 4, 360, math.radians(270), 'front')

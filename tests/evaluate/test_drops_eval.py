@@ -123,6 +123,7 @@ def test_in_the_ledge_world_lidar_falls_and_obstacle_stops_and_arrives():
         turning=(),
         methods=('lidar', 'obstacle'),
         closed_loop_methods=('lidar', 'obstacle'),
+        amr=(),
     )
     evaluation = Evaluation(settings)
     evaluation.run()

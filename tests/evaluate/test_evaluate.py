@@ -226,6 +226,22 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     memory_turn = result.methods['obstacle'].scan_by_world['turn-in-place']
     assert memory_turn.low_slots_near == compensated_turn.low_slots_near > 0
     assert memory_turn.recall_near > compensated_turn.recall_near
+    # The AMR backs out of its dead end (one seeded trial per method in the quick run). Its
+    # box stands under both LiDARs' 0.30 m plane on the straight way out: the merged LiDARs
+    # never show it and their robot backs into it; the rear camera shows it.
+    assert set(result.robots) == {'amr/lidar', 'amr/obstacle'}
+    amr_lidar, amr_obstacle = result.robots['amr/lidar'], result.robots['amr/obstacle']
+    assert amr_lidar.scan.low_slots == amr_obstacle.scan.low_slots > 0  # the same scans
+    assert amr_lidar.scan.recall < 0.05
+    assert amr_obstacle.scan.recall > 0.8
+    assert amr_obstacle.scan.recall_near > amr_lidar.scan.recall_near
+    assert amr_lidar.closed_loop is not None
+    assert amr_obstacle.closed_loop is not None
+    assert (amr_lidar.closed_loop.trials, amr_lidar.closed_loop.reversing_collisions) == (1, 1)
+    assert (amr_obstacle.closed_loop.trials, amr_obstacle.closed_loop.collisions) == (1, 0)
+    assert result.headline()['amr/lidar']['reversing_collisions'] == 1
+    assert '## Two-LiDAR AMR, reversing' in report
+    assert 'collisions when reversing' in report
 
 
 def test_unknown_turning_trial_is_refused():

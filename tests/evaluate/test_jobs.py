@@ -18,6 +18,7 @@ def tiny() -> EvaluationSettings:
         closed_loop_methods=('lidar', 'obstacle'),
         turning=('turn-in-place',),
         time_limit=12.0,
+        amr=(),
     )
 
 

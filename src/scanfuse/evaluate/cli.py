@@ -45,7 +45,7 @@ def run_evaluate(
 
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
     choose_headless_gl()
-    from scanfuse.evaluate.report import table  # noqa: PLC0415
+    from scanfuse.evaluate.report import amr_table, table  # noqa: PLC0415
     from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
@@ -65,6 +65,9 @@ def run_evaluate(
     settings = make(**changes)  # type: ignore[arg-type]
     result = run_evaluation(out, settings, RichProgress(console), jobs=jobs)
     console.print(table(result))
+    robot_rows = amr_table(result)
+    if robot_rows is not None:
+        console.print(robot_rows)
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')
     return result

@@ -52,6 +52,7 @@ if TYPE_CHECKING:
     from scanfuse.evaluate.methods import MethodStream
     from scanfuse.scan import Scan
     from scanfuse.sim.simulation import (
+        CloudFrame,
         Contact,
         Controller,
         DepthFrame,
@@ -449,6 +450,10 @@ class StreamFeed:
     def on_lidar(self, frame: LidarFrame) -> None:
         for stream in self.streams:
             self._emit(stream, stream.add_scan(frame))
+
+    def on_cloud(self, frame: CloudFrame) -> None:
+        for stream in self.streams:
+            self._emit(stream, stream.add_cloud(frame))
 
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
         del stamp_ns  # every contact carries its own stamp

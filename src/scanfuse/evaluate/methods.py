@@ -45,7 +45,7 @@ if TYPE_CHECKING:
     from scanfuse.camera import CameraModel
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
-    from scanfuse.sim.simulation import DepthFrame, LidarFrame, StateSample
+    from scanfuse.sim.simulation import CloudFrame, DepthFrame, LidarFrame, StateSample
     from scanfuse.stream import StreamCounts, StreamOutput
 
 # Where the low row looks: this share of the way from the centre row to the bottom.
@@ -223,6 +223,18 @@ class MethodStream:
         return self._out(
             self.stream.add_depth(
                 frame.stamp_ns, frame.depth, frame.arrival_ns, frame_id, source=source
+            )
+        )
+
+    def add_cloud(self, frame: CloudFrame) -> list[tuple[LidarFrame, Scan]]:
+        """A 3D LiDAR's cloud: used by the fusing methods (`lidar` takes the 2D LiDARs only)."""
+        if self.stream is None:
+            return []
+        if not self.takes_depth:
+            return self._out(self.stream.tick(frame.arrival_ns))
+        return self._out(
+            self.stream.add_cloud(
+                frame.stamp_ns, frame.points, frame.arrival_ns, frame.frame_id, frame.source
             )
         )
 

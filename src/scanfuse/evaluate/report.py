@@ -171,6 +171,107 @@ def memory_section(result: EvaluationResult) -> list[str]:
     return ['## Memory trials', '', MEMORY_NOTE, '', _markdown_table(headers, rows), '']
 
 
+AMR_NOTE = (
+    'The two-LiDAR AMR (`scanfuse simulate --robot amr`): a 0.5 m x 0.34 m box chassis, two '
+    '270-degree LiDARs (hokuyo-ust10lx, 40 Hz, rotating sweeps, the second half a period after '
+    'the first) at its front-left and rear-right corners facing forward-left and backward-right, '
+    "0.30 m above the floor, and a front and a rear depth camera (the front one's model, "
+    'latency and rate), fused by one FusionStream per method into a 360-degree scan in the '
+    "front LiDAR's frame (`full_circle`). Trials (`amr-deadend`, seeded): the AMR starts "
+    'nose-in to a dead-end bay and must back out of it, rear first, past a low box (6-14 cm) '
+    'on the line behind it, then drive to a goal beside the bay. `lidar`: both LiDARs merged, '
+    'no camera; `obstacle`: both LiDARs and both cameras, memory on. Recall in view: '
+    'low-obstacle slots in view of either camera (<= 3 m); all-around recall: low-obstacle '
+    "slots within 1.0 m of the footprint's circumscribed disc, any direction; both on the "
+    "`obstacle` runs' scans. Collisions when reversing: trials whose first contact came "
+    'while the robot was driving backwards.'
+)
+AMR_HEADERS = [
+    'method',
+    'recall in view (either camera)',
+    'all-around recall (<= 1 m)',
+    'low slots in view',
+    'false obstacles',
+    'collisions',
+    'collisions when reversing',
+    'goals reached',
+]
+
+
+def amr_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per AMR method: recall in view, all-around recall, collisions (when reversing)."""
+    rows = []
+    for robot in result.robots.values():
+        loop = robot.closed_loop
+        rows.append(
+            [
+                robot.method,
+                _fmt(robot.scan.recall),
+                _fmt(robot.scan.recall_near),
+                str(robot.scan.low_slots),
+                _percent(robot.scan.false_obstacle_rate),
+                f'{loop.collisions}/{loop.trials}' if loop else '-',
+                f'{loop.reversing_collisions}/{loop.trials}' if loop else '-',
+                f'{loop.reached}/{loop.trials}' if loop else '-',
+            ]
+        )
+    return rows
+
+
+def amr_section(result: EvaluationResult) -> list[str]:
+    """The AMR's trials: its rows and every trial."""
+    if not result.robots:
+        return []
+    trials = [
+        [
+            o.trial,
+            o.method,
+            'yes' if o.collided else 'no',
+            o.first_contact_kind or '-',
+            'yes' if o.reversing_contact else 'no',
+            'yes' if o.reached else 'no',
+            _fmt(o.path_length, 2),
+            _fmt(o.duration, 1),
+        ]
+        for robot in result.robots.values()
+        for o in robot.trials
+    ]
+    return [
+        '## Two-LiDAR AMR, reversing',
+        '',
+        AMR_NOTE,
+        '',
+        _markdown_table(AMR_HEADERS, amr_rows(result)),
+        '',
+        _markdown_table(
+            [
+                'trial',
+                'method',
+                'collided',
+                'hit',
+                'reversing',
+                'reached',
+                'driven (m)',
+                'time (s)',
+            ],
+            trials,
+        ),
+        '',
+    ]
+
+
+def amr_table(result: EvaluationResult) -> Table | None:
+    """The AMR's rows as a rich table for the terminal (None: no AMR trial was run)."""
+    if not result.robots:
+        return None
+    view = Table(title='scanfuse evaluation: two-LiDAR AMR, reversing')
+    for header in AMR_HEADERS:
+        view.add_column(header, justify='left' if header == 'method' else 'right')
+    for row in amr_rows(result):
+        view.add_row(*row, style='bold' if row[0] == 'obstacle' else None)
+    return view
+
+
 def markdown(result: EvaluationResult) -> str:
     """report.md: what was run, the headline table, per-kind recall, maps, trials, figures."""
     from scanfuse.evaluate.closed_loop import TURNING_TRIALS  # noqa: PLC0415
@@ -310,6 +411,7 @@ def markdown(result: EvaluationResult) -> str:
     ]
     parts += [_markdown_table(['method', 'trial', 'precision', 'recall', 'IoU'], rows), '']
     parts += memory_section(result)
+    parts += amr_section(result)
     parts += ['## Closed-loop trials', '']
     rows = [
         [

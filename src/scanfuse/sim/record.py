@@ -58,8 +58,10 @@ from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    POINT_CLOUD,
     TF_MESSAGE,
     camera_to_cdr,
+    cloud_to_cdr,
     depth_to_cdr,
     scan_to_cdr,
     serialize,
@@ -71,6 +73,7 @@ from scanfuse.sim.errors import SimError
 from scanfuse.sim.simulation import (
     EPOCH_NS,
     NANOSECONDS,
+    CloudFrame,
     Contact,
     Controller,
     DepthFrame,
@@ -118,6 +121,8 @@ def robot_topics(robot: RobotSpec) -> dict[str, str]:
     for camera in robot.cameras():
         topics[camera.depth_topic] = IMAGE
         topics[camera.info_topic] = CAMERA_INFO
+    if robot.cloud is not None:
+        topics[robot.cloud.topic] = POINT_CLOUD
     topics.update(COMMON_TOPICS)
     return topics
 
@@ -153,6 +158,18 @@ def static_transforms(robot: RobotSpec, stamp_ns: int = EPOCH_NS) -> list[Stampe
                 BASE_FRAME,
                 lidar.frame,
                 (lidar.x, lidar.y, lidar.z),
+                (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
+                stamp_ns,
+            )
+        )
+    if robot.cloud is not None:
+        cloud = robot.cloud
+        half_yaw = cloud.yaw / 2
+        transforms.append(
+            StampedTransform(
+                BASE_FRAME,
+                cloud.frame,
+                (cloud.x, cloud.y, cloud.z),
                 (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
                 stamp_ns,
             )
@@ -273,6 +290,7 @@ class BagSink:
     scan_topics: dict[str, str] = field(default_factory=dict)  # LiDAR source -> topic
     camera_topics: dict[str, tuple[str, str]] = field(default_factory=dict)  # source -> topics
     camera_frames: dict[str, str] = field(default_factory=dict)  # source -> optical frame
+    cloud_topic: str | None = None
 
     def open(self, robot: RobotSpec) -> None:
         store = typestore()
@@ -281,6 +299,7 @@ class BagSink:
             camera.source: (camera.depth_topic, camera.info_topic) for camera in robot.cameras()
         }
         self.camera_frames = {camera.source: camera.frame for camera in robot.cameras()}
+        self.cloud_topic = robot.cloud.topic if robot.cloud is not None else None
         for topic, msgtype in robot_topics(robot).items():
             qos = [LATCHED] if topic == '/tf_static' else []
             self.connections[topic] = self.writer.add_connection(
@@ -306,6 +325,11 @@ class BagSink:
         self._write(depth_topic, frame.arrival_ns, image)
         info = camera_to_cdr(frame.camera, stamp_ns=frame.stamp_ns)
         self._write(info_topic, frame.arrival_ns, info)
+
+    def on_cloud(self, frame: CloudFrame) -> None:
+        assert self.cloud_topic is not None  # only a robot with a 3D LiDAR makes clouds
+        cloud = cloud_to_cdr(frame.points, frame_id=frame.frame_id, stamp_ns=frame.stamp_ns)
+        self._write(self.cloud_topic, frame.arrival_ns, cloud)
 
     def on_state(self, sample: StateSample) -> None:
         self.states.append(sample)

@@ -7,8 +7,8 @@ ray casts exclude, so the sensors never see the robot itself.
 Two robots (`ROBOTS`): `default`, round, one 360-degree LiDAR and one front depth camera;
 `amr`, a box-shaped warehouse AMR with two 270-degree LiDARs at opposite corners (front-left
 facing forward-left, rear-right facing backward-right, both at the default LiDAR's height,
-above the low obstacles) and a front and a rear depth camera, named and on the topics of
-examples/scanfuse_multi.yaml.
+above the low obstacles), a front and a rear depth camera and a 3D LiDAR on a mast
+(PointCloud2), named and on the topics of examples/scanfuse_multi.yaml.
 """
 
 from __future__ import annotations
@@ -70,6 +70,19 @@ class CameraMount:
 
 
 @dataclass(frozen=True)
+class CloudMount:
+    """A 3D LiDAR publishing PointCloud2: its source name, frame, topic and pose."""
+
+    source: str  # the name in `clouds`
+    frame: str
+    topic: str
+    x: float
+    y: float
+    z: float
+    yaw: float = 0.0
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """Dimensions of the robot and where its sensors sit on it (metres, radians).
 
@@ -102,6 +115,7 @@ class RobotSpec:
     rear_lidar: Mount | None = None  # a second LiDAR, the first's model and height
     rear_camera: Mount | None = None  # a second depth camera, the first's model and pitch
     lidar_model: str = 'rplidar-a2'  # the LiDAR profile it carries unless told otherwise
+    cloud: CloudMount | None = None  # a 3D LiDAR (PointCloud2), the `cloud` profile of SimConfig
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lidar_height < 3.0:
@@ -124,7 +138,7 @@ class RobotSpec:
     @property
     def several(self) -> bool:
         """The robot has more than one LiDAR or camera (named sources, per-sensor topics)."""
-        return self.rear_lidar is not None or self.rear_camera is not None
+        return self.rear_lidar is not None or self.rear_camera is not None or self.cloud is not None
 
     def lidars(self) -> tuple[LidarMount, ...]:
         """Every LiDAR, the first (the fused scan's frame and trigger) first."""
@@ -272,6 +286,8 @@ AMR = RobotSpec(
     rear_lidar=Mount(-AMR_CHASSIS[0], -AMR_CHASSIS[1], -3 * math.pi / 4),
     camera_x=AMR_CHASSIS[0],
     rear_camera=Mount(-AMR_CHASSIS[0], 0.0, math.pi),
+    # On a mast, 1.1 m up: it sees what stands above the robot's height.
+    cloud=CloudMount('livox', 'livox_frame', '/livox/points', 0.0, 0.0, 1.1),
 )
 ROBOTS: dict[str, RobotSpec] = {'default': RobotSpec(), 'amr': AMR}
 

@@ -81,6 +81,69 @@ LIDARS: dict[str, LidarProfile] = {
 
 
 @dataclass(frozen=True)
+class CloudProfile:
+    """A 3D LiDAR publishing PointCloud2: azimuth steps over 360 degrees, elevation rings.
+
+    Each cloud is cast at once at its stamp and delivered `latency` later (the driver's
+    integration and transfer); readings outside [range_min, range_max] are left out.
+    """
+
+    name: str
+    azimuths: int
+    elevation_min: float
+    elevation_max: float
+    rings: int
+    rate: float
+    range_min: float
+    range_max: float
+    latency: float = 0.02
+    sigma: float = 0.02  # metres along the ray, with noise on
+
+
+CLOUDS: dict[str, CloudProfile] = {
+    # A Livox Mid-360's field of view (360 x -7..52 degrees), its non-repetitive pattern
+    # sampled on a fixed grid of 1-degree azimuths and 20 rings, 10 Hz.
+    'mid360': CloudProfile(
+        'mid360', 360, math.radians(-7.0), math.radians(52.0), 20, 10.0, 0.1, 40.0
+    ),
+}
+
+
+def cloud_profile(name: str) -> CloudProfile:
+    profile = CLOUDS.get(name)
+    if profile is None:
+        msg = f'unknown point-cloud LiDAR profile {name!r}; choose one of {", ".join(CLOUDS)}'
+        raise SimError(msg)
+    return profile
+
+
+def cloud_directions(profile: CloudProfile) -> Matrix:
+    """Unit rays of every azimuth on every ring (sensor frame: x forward, z up)."""
+    azimuth = 2.0 * math.pi * np.arange(profile.azimuths) / profile.azimuths - math.pi
+    elevation = np.linspace(profile.elevation_min, profile.elevation_max, profile.rings)
+    az, el = np.meshgrid(azimuth, elevation)
+    rays = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
+    return rays.reshape(-1, 3)
+
+
+def cloud_points(
+    distances: npt.NDArray[np.float64],
+    directions: Matrix,
+    profile: CloudProfile,
+    noise: bool,
+    rng: np.random.Generator,
+) -> npt.NDArray[np.float32]:
+    """x, y, z (N x 3, sensor frame) of the returns within range, noisy along the ray."""
+    ranges = distances.copy()
+    if noise:
+        ranges += rng.normal(0.0, profile.sigma, ranges.shape)
+    with np.errstate(invalid='ignore'):
+        kept = np.isfinite(ranges) & (ranges >= profile.range_min) & (ranges <= profile.range_max)
+    points: npt.NDArray[np.float32] = (directions[kept] * ranges[kept, None]).astype(np.float32)
+    return points
+
+
+@dataclass(frozen=True)
 class CameraProfile:
     """A depth camera: field of view, resolutions, rate, range limits.
 

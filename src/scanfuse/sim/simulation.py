@@ -20,7 +20,9 @@ step as a real one's do:
 - **A robot with several sensors** (`RobotSpec.lidars()`, `cameras()`, the `amr`): every
   LiDAR sweeps and every camera exposes on its own clock, the second one `sensor_stagger`
   of its period after the first (two free-running sensors are never in phase). Frames
-  carry their sensor's source name; the controller steps on the first LiDAR's scans.
+  carry their sensor's source name; the controller steps on the first LiDAR's scans. A 3D
+  LiDAR (`RobotSpec.cloud`, profile `SimConfig.cloud`) casts a whole cloud at once at its
+  stamp, a quarter period after the start, and delivers it the profile's latency later.
 
 Falls: at every state sample the base's height is compared with where it settled; once it
 is more than `FALL_DEPTH` lower, the base has left the floor plane (a ledge, a stair, a
@@ -55,6 +57,7 @@ from scanfuse.sim.robot import (
     ROBOT_BODY,
     ROBOT_GEOM_GROUP,
     CameraMount,
+    CloudMount,
     LidarMount,
     RobotSpec,
     WheelOdometry,
@@ -65,6 +68,9 @@ from scanfuse.sim.sensors import (
     LidarNoise,
     RayFan,
     camera_profile,
+    cloud_directions,
+    cloud_points,
+    cloud_profile,
     depth_image,
     lidar_directions,
     lidar_profile,
@@ -132,6 +138,7 @@ class SimConfig:
     min_obstacle_height: float = _DEFAULTS.min_obstacle_height
     max_obstacle_height: float = _DEFAULTS.max_obstacle_height
     sensor_stagger: float = 0.5  # share of a period between a robot's two LiDARs (cameras)
+    cloud: str = 'mid360'  # the 3D LiDAR's profile, on a robot that carries one
 
     def __post_init__(self) -> None:
         if self.depth_rate is not None and not 0.0 < self.depth_rate <= 1000.0:
@@ -202,6 +209,17 @@ def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
             'z': mount.z,
             'yaw': mount.yaw,
         }
+    if robot.cloud is not None:
+        cloud = robot.cloud
+        values['clouds'] = [cloud.source]
+        values[cloud.source] = {
+            'topic': cloud.topic,
+            'x': cloud.x,
+            'y': cloud.y,
+            'z': cloud.z,
+            'yaw': cloud.yaw,
+            'range_max': OBSTACLE_CLOUD_RANGE,
+        }
     values['cameras'] = [mount.source for mount in cameras]
     for cam in cameras:
         values[cam.source] = {
@@ -261,6 +279,21 @@ class DepthFrame:
 
 
 @dataclass(frozen=True)
+class CloudFrame:
+    """A 3D LiDAR's points (N x 3, its frame), stamped when cast, delivered `delivered_ns`."""
+
+    stamp_ns: int
+    points: npt.NDArray[np.float32]
+    frame_id: str
+    source: str
+    delivered_ns: int
+
+    @property
+    def arrival_ns(self) -> int:
+        return self.delivered_ns
+
+
+@dataclass(frozen=True)
 class StateSample:
     """Wheel odometry (odom frame) and the true pose (world frame) at one instant."""
 
@@ -314,6 +347,7 @@ class Sink(Protocol):
     def on_depth(self, frame: DepthFrame) -> None: ...
     def on_state(self, sample: StateSample) -> None: ...
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None: ...
+    def on_cloud(self, frame: CloudFrame) -> None: ...
 
 
 @dataclass
@@ -324,9 +358,13 @@ class Trace:
     depth: list[DepthFrame] = field(default_factory=list)
     states: list[StateSample] = field(default_factory=list)
     contacts: list[Contact] = field(default_factory=list)
+    clouds: list[CloudFrame] = field(default_factory=list)
 
     def on_lidar(self, frame: LidarFrame) -> None:
         self.lidar.append(frame)
+
+    def on_cloud(self, frame: CloudFrame) -> None:
+        self.clouds.append(frame)
 
     def on_depth(self, frame: DepthFrame) -> None:
         self.depth.append(frame)
@@ -341,6 +379,8 @@ class Trace:
 
 # Events at the same physics step happen in this order.
 _STATE, _EXPOSE, _SWEEP, _BEAMS, _DELIVER_DEPTH, _DELIVER_SCAN = range(6)
+# The examples' cloud range (examples/scanfuse_multi.yaml), metres from the output origin.
+OBSTACLE_CLOUD_RANGE = 8.0
 
 
 @dataclass
@@ -462,6 +502,14 @@ class Simulation:
         self._depth_fan = RayFan(
             rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
         )
+        self.cloud_mount: CloudMount | None = self.robot.cloud
+        self.cloud_profile = cloud_profile(config.cloud)
+        self._cloud_directions = cloud_directions(self.cloud_profile)
+        self._cloud_fan = (
+            RayFan(self._cloud_directions, cutoff=self.cloud_profile.range_max + 1.0)
+            if self.cloud_mount is not None
+            else None
+        )
         self._renderers = [
             self._make_renderer(config.depth_backend, camera, camera_name(mount))
             for camera, mount in zip(self.cameras, self.camera_mounts, strict=True)
@@ -488,6 +536,12 @@ class Simulation:
             np.random.default_rng(seed)
             for seed in (depth_seed, *extra[len(self.lidar_mounts) - 1 :])
         ]
+        # Spawned after the others: adding the cloud changes no other sensor's noise.
+        self._cloud_rng = np.random.default_rng(
+            np.random.SeedSequence(config.seed).spawn(
+                len(self.lidar_mounts) + len(self.camera_mounts) + 1
+            )[-1]
+        )
         self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
         self._settle()
 
@@ -665,6 +719,33 @@ class Simulation:
         source = self.camera_mounts[camera].source
         return DepthFrame(self.stamp_ns, image, self.cameras[camera], source=source)
 
+    def cloud_pose(self) -> tuple[Matrix, Matrix]:
+        """Origin and rotation (sensor -> world) of the 3D LiDAR."""
+        mount = self.cloud_mount
+        if mount is None:
+            msg = f'the {self.robot.name} robot carries no 3D LiDAR'
+            raise SimError(msg)
+        position, rotation = self.base_pose()
+        offset = np.array([mount.x, mount.y, mount.z])
+        return position + rotation @ offset, rotation @ yaw_matrix(mount.yaw)
+
+    def cloud_frame(self, latency_ns: int = 0) -> CloudFrame:
+        """The 3D LiDAR's points now, in its frame; delivered `latency_ns` later."""
+        origin, rotation = self.cloud_pose()
+        assert self._cloud_fan is not None  # cloud_pose has checked the mount
+        assert self.cloud_mount is not None
+        distances, _ = self._cloud_fan.cast(self.model, self.data, origin, rotation)
+        points = cloud_points(
+            distances,
+            self._cloud_directions,
+            self.cloud_profile,
+            self.config.noise,
+            self._cloud_rng,
+        )
+        mount = self.cloud_mount
+        stamp = self.stamp_ns
+        return CloudFrame(stamp, points, mount.frame, mount.source, stamp + latency_ns)
+
     def contacts(self) -> list[Contact]:
         """Contacts between the robot and anything but the floor, now."""
         found = []
@@ -838,7 +919,22 @@ class Simulation:
             if step + round(period / dt) <= end:  # a sweep delivered after the run is not cast
                 at(step, _SWEEP, lambda: sweep(lidar, index))
 
+        cloud_period = 1.0 / self.cloud_profile.rate
+        cloud_latency = round(self.cloud_profile.latency / dt)
+
+        def cast_cloud(index: int) -> None:
+            frame = self.cloud_frame(cloud_latency * self._step_ns)
+            at(self._step + cloud_latency, _DELIVER_DEPTH, lambda: sink.on_cloud(frame))
+            schedule_cloud(index + 1)
+
+        def schedule_cloud(index: int) -> None:
+            step = step_of((0.25 + index) * cloud_period)
+            if step + cloud_latency <= end:
+                at(step, _EXPOSE, lambda: cast_cloud(index))
+
         at(start, _STATE, lambda: state(0))
+        if self.cloud_mount is not None:
+            schedule_cloud(0)
         for camera in range(len(self.camera_mounts)):
             schedule_exposure(camera, 0)
         for lidar in range(len(self.lidar_mounts)):
