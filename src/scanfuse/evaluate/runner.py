@@ -91,6 +91,15 @@ class EvaluationSettings:
     depth_latency: float = 0.040  # seconds from exposure to delivery
     lidar_chunks: int = 12  # ray casts per sweep
     odometry_rate: float = 50.0  # Hz
+    # A parameter file's ros__parameters (`--params`): the robot's mounting and slab, and
+    # the base every method's configuration changes; empty: the simulated robot as built.
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def fusion_base(self) -> FusionConfig | None:
+        """The configuration `params` describe (validated), or None without parameters."""
+        from scanfuse.config import FusionConfig  # noqa: PLC0415
+
+        return FusionConfig.from_dict(self.params) if self.params else None
 
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
@@ -106,21 +115,34 @@ class EvaluationSettings:
         return replace(base, **changes)
 
 
-def base_config(sim: Simulation) -> FusionConfig:
-    """The fusion configuration that matches the simulated robot's mounting and camera."""
+def base_config(sim: Simulation, settings: EvaluationSettings) -> FusionConfig:
+    """The fusion configuration of the simulated robot: its mounting and camera, on top of
+    the parameter file's values when there is one."""
     from scanfuse.sim.simulation import fusion_config  # noqa: PLC0415
 
-    return fusion_config(sim.config)
+    return fusion_config(sim.config, settings.fusion_base())
 
 
 def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings) -> Simulation:
-    """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen."""
-    from scanfuse.sim.simulation import SimConfig, Simulation  # noqa: PLC0415
+    """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen.
+
+    With parameters, the robot is mounted and the slab set as they say (radians throughout).
+    """
+    from scanfuse.sim.robot import RobotSpec  # noqa: PLC0415
+    from scanfuse.sim.simulation import SimConfig, Simulation, robot_mounting  # noqa: PLC0415
 
     if isinstance(trial, TurningSpec):
         world, seed = turning_world(), 0
     else:
         world, seed = evaluation_world(trial.world, trial.seed), trial.seed
+    robot: dict[str, Any] = {}
+    base = settings.fusion_base()
+    if base is not None:
+        robot = {
+            'robot': RobotSpec(**robot_mounting(base)),
+            'min_obstacle_height': base.min_obstacle_height,
+            'max_obstacle_height': base.max_obstacle_height,
+        }
     config = SimConfig(
         world=world.name,
         seed=seed,
@@ -131,6 +153,7 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
         lidar_chunks=settings.lidar_chunks,
         state_rate=settings.odometry_rate,
         noise=settings.noise,
+        **robot,
     )
     return Simulation(config, world)
 
@@ -231,6 +254,11 @@ class Evaluation:
             if name not in TURNING_TRIALS:
                 msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
                 raise ConfigError(msg)
+        base = settings.fusion_base()
+        if base is not None:
+            from scanfuse.sim.simulation import robot_mounting  # noqa: PLC0415
+
+            robot_mounting(base)  # a robot the simulator cannot build fails here, not in a trial
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
@@ -347,7 +375,7 @@ class Evaluation:
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
         try:
-            base = base_config(sim)
+            base = base_config(sim, self.settings)
             transforms = robot_transforms(sim)
             driver = MethodStream(method, base, sim.camera, transforms)
             scoring = method == 'obstacle' or (
@@ -386,7 +414,7 @@ class Evaluation:
     def _turning(self, spec: TurningSpec) -> None:
         sim = make_simulation(spec, self.settings)
         try:
-            base = base_config(sim)
+            base = base_config(sim, self.settings)
             scorer = _Scorer(
                 self, spec.label, spec.label, sim, base, robot_transforms(sim), mapped=False
             )
