@@ -250,11 +250,30 @@ def evaluate(
     jobs: Annotated[
         int, typer.Option('--jobs', help='trials run in parallel processes (results as serial)')
     ] = 1,
+    params: Annotated[
+        Path | None,
+        typer.Option(
+            help='scanfuse parameter file: the robot mounted and every method based on it'
+        ),
+    ] = None,
 ) -> None:
-    """Measure every method: scan metrics, maps, closed-loop collisions; write a report."""
+    """Measure every method: scan metrics, maps, closed-loop collisions; write a report.
+
+    With --params the simulated robot is mounted as the file says (radians throughout), its
+    slab is the file's, and every method changes only what defines it (e.g. `row` sets the
+    method) on top of the file's values; `scanfuse.yaml` in --out records what was used.
+    """
     from scanfuse.evaluate.cli import run_evaluate  # noqa: PLC0415
 
-    run_evaluate(out, quick=quick, worlds=worlds, trials=trials, console=Console(), jobs=jobs)
+    run_evaluate(
+        out,
+        quick=quick,
+        worlds=worlds,
+        trials=trials,
+        console=Console(),
+        jobs=jobs,
+        params=params,
+    )
 
 
 @app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})

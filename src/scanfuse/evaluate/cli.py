@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from scanfuse.config import NODE_ONLY, FusionConfig, read_ros_params
 from scanfuse.errors import ConfigError
 from scanfuse.progress import RichProgress
 from scanfuse.sim.worlds import WORLDS
@@ -31,6 +32,13 @@ def parse_worlds(worlds: str | None) -> tuple[str, ...] | None:
     return names
 
 
+def parameters_of(path: Path) -> dict[str, Any]:
+    """A parameter file's fusion parameters (the node's own, such as pair_wait, left out)."""
+    values = {k: v for k, v in read_ros_params(path).items() if k not in NODE_ONLY}
+    FusionConfig.from_dict(values)  # wrong values fail here, naming the parameter
+    return values
+
+
 def run_evaluate(
     out: Path,
     *,
@@ -39,6 +47,7 @@ def run_evaluate(
     trials: int | None,
     console: Console,
     jobs: int = 1,
+    params: Path | None = None,
 ) -> EvaluationResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
@@ -50,6 +59,8 @@ def run_evaluate(
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
     changes: dict[str, object] = {}
+    if params is not None:
+        changes['params'] = parameters_of(params)
     names = parse_worlds(worlds)
     if names is not None:
         changes['worlds'] = names

@@ -110,6 +110,15 @@ class EvaluationSettings:
     amr: tuple[str, ...] = tuple(AMR_FAMILIES)
     amr_trials: int = 5
     amr_methods: tuple[str, ...] = AMR_METHODS
+    # A parameter file's ros__parameters (`--params`): the robot's mounting and slab, and
+    # the base every method's configuration changes; empty: the simulated robot as built.
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def fusion_base(self) -> FusionConfig | None:
+        """The configuration `params` describe (validated), or None without parameters."""
+        from scanfuse.config import FusionConfig  # noqa: PLC0415
+
+        return FusionConfig.from_dict(self.params) if self.params else None
 
     @classmethod
     def quick(cls, **changes: Any) -> EvaluationSettings:
@@ -126,40 +135,51 @@ class EvaluationSettings:
         return replace(base, **changes)
 
 
-def base_config(sim: Simulation) -> FusionConfig:
-    """The fusion configuration that matches the simulated robot's mounting and camera."""
+def base_config(sim: Simulation, settings: EvaluationSettings) -> FusionConfig:
+    """The fusion configuration of the simulated robot: its mounting and camera, on top of
+    the parameter file's values when there is one."""
     from scanfuse.sim.simulation import fusion_config  # noqa: PLC0415
 
-    return fusion_config(sim.config)
+    return fusion_config(sim.config, settings.fusion_base())
 
 
 def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings) -> Simulation:
     """The trial's simulation; depth through mujoco.Renderer when a headless GL was chosen.
 
-    An AMR trial's robot is the AMR with its own LiDARs; every other trial's the default.
+    With parameters, the robot is mounted and the slab set as they say (radians throughout).
+    An AMR trial's robot is the AMR as built, with its own LiDARs (parameters set its slab);
+    every other trial's the default robot.
     """
     from scanfuse.sim.robot import AMR, RobotSpec  # noqa: PLC0415
-    from scanfuse.sim.simulation import SimConfig, Simulation  # noqa: PLC0415
+    from scanfuse.sim.simulation import SimConfig, Simulation, robot_mounting  # noqa: PLC0415
 
-    robot, lidar = RobotSpec(), settings.lidar
+    amr = isinstance(trial, TrialSpec) and trial.world in AMR_FAMILIES
     if isinstance(trial, TurningSpec):
         world, seed = turning_world(), 0
-    elif trial.world in AMR_FAMILIES:
+    elif amr:
         world, seed = amr_trial(trial.world, trial.seed).world, trial.seed
-        robot, lidar = AMR, AMR_LIDAR
     else:
         world, seed = evaluation_world(trial.world, trial.seed), trial.seed
+    robot: dict[str, Any] = {'robot': AMR} if amr else {}
+    base = settings.fusion_base()
+    if base is not None:
+        mounting: dict[str, Any] = dict(robot_mounting(base))
+        robot = {
+            'robot': AMR if amr else RobotSpec(**mounting),
+            'min_obstacle_height': base.min_obstacle_height,
+            'max_obstacle_height': base.max_obstacle_height,
+        }
     config = SimConfig(
         world=world.name,
         seed=seed,
-        robot=robot,
-        lidar=lidar,
+        lidar=AMR_LIDAR if amr else settings.lidar,
         resolution=settings.resolution,
         depth_rate=settings.depth_rate,
         depth_latency=settings.depth_latency,
         lidar_chunks=settings.lidar_chunks,
         state_rate=settings.odometry_rate,
         noise=settings.noise,
+        **robot,
     )
     return Simulation(config, world)
 
@@ -272,6 +292,11 @@ class Evaluation:
             if name not in AMR_METHODS:
                 msg = f'unknown AMR method {name!r}; choose from {", ".join(AMR_METHODS)}'
                 raise ConfigError(msg)
+        base = settings.fusion_base()
+        if base is not None:
+            from scanfuse.sim.simulation import robot_mounting  # noqa: PLC0415
+
+            robot_mounting(base)  # a robot the simulator cannot build fails here, not in a trial
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
@@ -403,7 +428,7 @@ class Evaluation:
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
         try:
-            base = base_config(sim)
+            base = base_config(sim, self.settings)
             transforms = robot_transforms(sim)
             driver = MethodStream(method, base, sim.camera, transforms)
             scoring = method == 'obstacle' or (
@@ -443,7 +468,7 @@ class Evaluation:
         """One AMR trial driven by `method`; the `obstacle` run scores every AMR method."""
         sim = make_simulation(trial, self.settings)
         try:
-            base = base_config(sim)
+            base = base_config(sim, self.settings)
             transforms = robot_transforms(sim)
             driver = MethodStream(method, base, sim.camera, transforms)
             methods = self.settings.amr_methods
@@ -473,7 +498,7 @@ class Evaluation:
     def _turning(self, spec: TurningSpec) -> None:
         sim = make_simulation(spec, self.settings)
         try:
-            base = base_config(sim)
+            base = base_config(sim, self.settings)
             scorer = _Scorer(
                 self, spec.label, spec.label, sim, base, robot_transforms(sim), mapped=False
             )

@@ -77,7 +77,7 @@ def run_evaluation(
     first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
     reference = make_simulation(first, settings)
     try:
-        config = base_config(reference)
+        config = base_config(reference, settings)
     finally:
         reference.close()
     return write_outputs(evaluation, out, config)

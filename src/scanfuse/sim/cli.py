@@ -15,7 +15,7 @@ from scanfuse.sim.errors import SimError
 from scanfuse.sim.record import RecordSummary, record
 from scanfuse.sim.robot import robot_spec
 from scanfuse.sim.sensors import DepthBackend
-from scanfuse.sim.simulation import SimConfig
+from scanfuse.sim.simulation import SimConfig, robot_mounting
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -41,21 +41,9 @@ def parse_backend(text: str) -> DepthBackend:
         raise SimError(msg) from None
 
 
-# RobotSpec's sensor poses and the FusionConfig parameters that describe them.
-MOUNTING_PARAMETERS = {
-    'lidar_x': 'lidar_x',
-    'lidar_height': 'lidar_height',
-    'lidar_yaw': 'lidar_yaw',
-    'camera_x': 'camera_x',
-    'camera_height': 'camera_height',
-    'camera_pitch': 'camera_pitch',
-}
-
-
 def mounting_from_params(path: Path) -> dict[str, float]:
     """The simulated robot's sensor poses from a scanfuse parameter file (metres, radians)."""
-    config = FusionConfig.from_ros_params(path)
-    return {spec: float(getattr(config, name)) for spec, name in MOUNTING_PARAMETERS.items()}
+    return robot_mounting(FusionConfig.from_ros_params(path))
 
 
 def run_simulate(

@@ -241,6 +241,46 @@ def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
     return FusionConfig.from_dict(values)
 
 
+# RobotSpec's sensor poses, named as FusionConfig names them (fusion_config's inverse).
+MOUNTING_PARAMETERS = (
+    'lidar_x',
+    'lidar_height',
+    'lidar_yaw',
+    'camera_x',
+    'camera_height',
+    'camera_pitch',
+)
+# Mounting parameters the simulated robot cannot follow: both sensors sit on its centre
+# line, the LiDAR level, the camera looking straight ahead (pitch only).
+UNSIMULATED_MOUNTING = (
+    'lidar_y',
+    'lidar_roll',
+    'lidar_pitch',
+    'camera_y',
+    'camera_roll',
+    'camera_yaw',
+)
+
+
+def robot_mounting(config: FusionConfig) -> dict[str, float]:
+    """The simulated robot's sensor poses (RobotSpec fields) as `config` mounts them.
+
+    Raises SimError for a mounting the simulated robot cannot have (off its centre line,
+    a tilted LiDAR), rather than simulating a different robot than the file describes.
+    """
+    off = {name: getattr(config, name) for name in UNSIMULATED_MOUNTING}
+    off = {name: value for name, value in off.items() if value != 0.0}
+    if off:
+        given = ', '.join(f'{name}={value:g}' for name, value in off.items())
+        msg = (
+            f'the simulated robot carries both sensors on its centre line, the LiDAR level and '
+            f'the camera turned by pitch only; it cannot be mounted with {given}: set '
+            f'{"/".join(off)} to 0 in the parameter file for the simulation'
+        )
+        raise SimError(msg)
+    return {name: float(getattr(config, name)) for name in MOUNTING_PARAMETERS}
+
+
 @dataclass(frozen=True)
 class LidarFrame:
     """One LiDAR scan, the ground-truth obstacle scan of the same slots, and the true pose.
