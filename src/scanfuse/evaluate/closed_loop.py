@@ -14,6 +14,11 @@ event to each method's `FusionStream` as the node would receive it: odometry at 
 depth images and CameraInfo at their delivery, scans at the end of their sweep. The
 navigator steps on every scan the driving method's stream releases, when it releases it.
 Turning trials (`TURNING_TRIALS`) drive a scripted turn past low obstacles instead.
+
+A trial may ask for its first waypoints to be reached backwards (`reverse_waypoints`: the
+AMR backing out of a dead end): the navigator follows the same A* path rear first, its
+stop/slow zones turned round to guard the rear, and a trial records whether its first
+contact came while reversing.
 """
 
 from __future__ import annotations

@@ -38,7 +38,9 @@ ROBOT_RADIUS = 0.18
 def scan_points(scan: Scan, frame: LidarFrame) -> npt.NDArray[np.float64]:
     """World (x, y) of every finite reading of `scan` taken at `frame`'s pose."""
     ranges = scan.ranges.astype(np.float64)
-    angles = scan.angles() + frame.pose.yaw
+    # The LiDAR's own heading: the AMR's LiDARs are turned 45 and -135 degrees on the base.
+    heading = frame.pose.yaw if frame.heading is None else frame.heading
+    angles = scan.angles() + heading
     keep = np.isfinite(ranges)
     x = frame.origin[0] + ranges[keep] * np.cos(angles[keep])
     y = frame.origin[1] + ranges[keep] * np.sin(angles[keep])
