@@ -77,7 +77,7 @@ def fused_scans(world: World, methods: tuple[str, ...], duration: float) -> dict
     """Each method's fused scans of a standing AMR, fed as the evaluation feeds them."""
     # Imported here: importing scanfuse.sim.record at collection would shadow the lazy
     # `scanfuse.sim.record` function with the module for the tests collected after this one.
-    from scanfuse.sim.record import static_transforms  # noqa: PLC0415
+    from scanfuse.sim.record import static_transforms
 
     config = amr_config()
     sim = Simulation(config, world)
@@ -170,7 +170,7 @@ def test_a_low_wall_1_m_behind_the_amr_is_seen_by_the_rear_camera_behind_it():
 
 
 def test_an_amr_bag_holds_the_multi_example_topics_and_scanfuse_bag_fuses_it(tmp_path: Path):
-    from scanfuse.sim.record import robot_topics  # noqa: PLC0415 - see fused_scans
+    from scanfuse.sim.record import robot_topics  # at run time: see fused_scans
 
     bag = tmp_path / 'amr.mcap'
     argv = ['simulate', '--out', str(bag), '--robot', 'amr', '--world', 'room', '--path']
