@@ -11,6 +11,7 @@ from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.frames import StampedTransform
+from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
@@ -198,6 +199,37 @@ def test_a_rear_cameras_obstacle_lands_at_bearing_pi():
     assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.02)  # the front camera's box
     assert reading(out.fused, math.pi) == pytest.approx(1.5, abs=0.02)  # the rear camera's
     assert reading(out.depth_scan, math.pi) == pytest.approx(1.5, abs=0.02)
+
+
+def test_the_rear_camera_clears_the_memory_once_it_sees_the_place_free():
+    # The rear camera's box (1.5 m behind) enters the memory; taken away, the next rear frame
+    # sees the floor where it stood and the memory forgets it, as the first camera's would.
+    stream: FusionStream[int] = FusionStream(front_and_rear_cameras(memory=True))
+    rear_camera = CameraModel.from_intrinsics(
+        320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='rear_optical'
+    )
+    stream.add_camera_info(CAMERA)
+    stream.add_camera_info(rear_camera, source='rear_depth')
+
+    def step(k: int, behind: list[Box]):
+        now = NS + k * NS // 10
+        for stamp in (now - NS // 20, now + NS // 500):  # the robot stands at the origin
+            stream.add_odometry(stamp, PlanarPose(0.0, 0.0, 0.0))
+        front = depth_image(CAMERA, camera_pose(0.0), [])
+        stream.add_depth(now - 10, front, now, 'front_optical')
+        rear = depth_image(rear_camera, camera_pose(math.pi), behind)
+        stream.add_depth(now - 20, rear, now, 'rear_optical', source='rear_depth')
+        (out,) = stream.add_scan(base_lidar(stamp=now), k, now + 1)
+        return out
+
+    first = step(0, [BOX_BEHIND])
+    assert reading(first.fused, math.pi) == pytest.approx(1.5, abs=0.02)
+    assert reading(first.memory_scan, math.pi) == pytest.approx(1.5, abs=0.02)
+    second = step(1, [])
+    assert not reading(second.fused, math.pi) < 2.0
+    assert stream.memory is not None
+    assert len(stream.memory) == 0
+    assert stream.counts.memory_cleared > 0
 
 
 def back_projected(depth_mm: np.ndarray, camera: CameraModel) -> np.ndarray:

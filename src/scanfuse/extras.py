@@ -11,7 +11,9 @@ sensors shared an origin):
 - a point cloud: its points inside the slab, with the obstacle method's per-slot estimate.
 
 A source with nothing fresh is passed over and counted per source (`missing`); one whose
-frame TF knows but cannot relate to the base is passed over too (`no_mounting`).
+frame TF knows but cannot relate to the base is passed over too (`no_mounting`). The other
+cameras' frames an output used are kept (`seen`): the stream's obstacle memory forgets what
+they see free, as it does with the first camera's.
 """
 
 from __future__ import annotations
@@ -80,6 +82,18 @@ class _Source:
         return max(near, key=lambda m: m.stamp_ns) if near else None
 
 
+@dataclass(frozen=True)
+class SeenFrame:
+    """A depth frame of another camera that an output scan used, for the memory to clear."""
+
+    name: str
+    stamp_ns: int
+    depth: npt.NDArray[np.generic]
+    camera: CameraModel
+    base_to_optical: Transform
+    slab: tuple[float, float]
+
+
 @dataclass
 class ExtraCounts:
     used: dict[str, int] = field(default_factory=dict)
@@ -110,6 +124,7 @@ class ExtraSources:
             name: FusionPipeline(_camera_config(config, s)) for name, s in self.cameras.items()
         }
         self.counts = ExtraCounts()
+        self.seen: list[SeenFrame] = []  # the other cameras' frames the last output used
 
     @property
     def names(self) -> list[str]:
@@ -150,6 +165,7 @@ class ExtraSources:
         """(LiDAR scans, obstacle scans) of the other sources on the output grid and stamp."""
         lidars: list[Scan] = []
         obstacles: list[Scan] = []
+        self.seen = []
         for name, state in self._state.items():
             message = state.freshest(output.stamp_ns)
             if message is None:
@@ -198,6 +214,17 @@ class ExtraSources:
             extrinsics = Extrinsics(base_to_laser=base_to_output, base_to_camera_optical=mount)
             depth: npt.NDArray[np.generic] = message.data  # type: ignore[assignment]
             result = self._pipelines[name].fuse(output, depth, message.camera, extrinsics, motion)
+            own = self._pipelines[name].config
+            self.seen.append(
+                SeenFrame(
+                    name,
+                    message.stamp_ns,
+                    depth,
+                    message.camera,
+                    mount,
+                    (own.min_obstacle_height, own.max_obstacle_height),
+                )
+            )
             return result.depth_scan
         cloud = self.clouds[name]
         mount = locator.mounting(message.frame_id, mounting_transform(cloud))

@@ -207,6 +207,7 @@ class FusionStream(Generic[T]):
         self._memory_segment: int | None = None  # odometry segment the points belong to
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
+        self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
@@ -586,8 +587,28 @@ class FusionStream(Generic[T]):
             self._drop_memory('odometry jumped (reset or relocalisation)')
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
-        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
-            self._clear_seen(memory, frame, extrinsics)
+        config = self.config
+        if (
+            frame is not None
+            and extrinsics is not None
+            and frame.stamp_ns != self._cleared_with
+            and self._clear_seen(
+                memory,
+                frame.stamp_ns,
+                frame.depth,
+                frame.camera,
+                extrinsics.base_to_camera_optical,
+                (config.min_obstacle_height, config.max_obstacle_height),
+            )
+        ):
+            self._cleared_with = frame.stamp_ns
+        # The other cameras clear what they see free too (a rear camera behind a reversing
+        # robot), each frame once, with its own slab.
+        for seen in self.extras.seen:
+            if self._extra_cleared_with.get(seen.name) != seen.stamp_ns and self._clear_seen(
+                memory, seen.stamp_ns, seen.depth, seen.camera, seen.base_to_optical, seen.slab
+            ):
+                self._extra_cleared_with[seen.name] = seen.stamp_ns
         placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
         if output.depth_scan is not None:
             memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
@@ -607,23 +628,30 @@ class FusionStream(Generic[T]):
         return replace(output, fused=fused, instant=instant, memory_scan=remembered)
 
     def _clear_seen(
-        self, memory: ObstacleMemory, frame: DepthFrame, extrinsics: Extrinsics
-    ) -> None:
-        camera_base = self.odometry.pose_at(frame.stamp_ns)
+        self,
+        memory: ObstacleMemory,
+        stamp_ns: int,
+        depth: npt.NDArray[np.generic],
+        camera: CameraModel,
+        base_to_optical: Transform,
+        slab: tuple[float, float],
+    ) -> bool:
+        """Forget what one depth frame sees free; False when odometry cannot place it (yet)."""
+        camera_base = self.odometry.pose_at(stamp_ns)
         if camera_base.pose is None or camera_base.segment != self._memory_segment:
-            return
-        self._cleared_with = frame.stamp_ns
+            return False
         base = camera_base.pose
         odom_to_base = Transform.from_rpy(0.0, 0.0, base.yaw, (base.x, base.y, 0.0))
         config = self.config
         self.counts.memory_cleared += memory.clear_seen(
-            frame.depth,
-            frame.camera,
-            odom_to_base @ extrinsics.base_to_camera_optical,
-            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            depth,
+            camera,
+            odom_to_base @ base_to_optical,
+            slab=slab,
             range_min=config.range_min,
             range_max=config.range_max,
         )
+        return True
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns
