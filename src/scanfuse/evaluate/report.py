@@ -526,13 +526,13 @@ def _scan_figure(evaluation: Evaluation, label: str, out: Path) -> Path:
             snapshot.scans['obstacle'],
             figures.FUSED_COLOR,
             origin,
-            frame.pose.yaw,
+            frame.lidar_yaw,
             14.0,
         )
         if 'obstacle' in snapshot.scans
         else None,
         figures.ScanLayer(
-            'LiDAR /scan', frame.scan, figures.LIDAR_COLOR, origin, frame.pose.yaw, 4.0
+            'LiDAR /scan', frame.scan, figures.LIDAR_COLOR, origin, frame.lidar_yaw, 4.0
         ),
     ]
     path = out / f'scans_{world_name}.png'
@@ -609,7 +609,7 @@ def _collision_figure(label: str, entry: tuple[World, object, object, float], ou
     believed = odometry_world_poses(world, log)
     for record, (x, y, yaw) in zip(log.frames, believed, strict=True):
         frame = record.lidar
-        true_map.integrate(frame.scan, frame.origin[0], frame.origin[1], frame.pose.yaw)
+        true_map.integrate(frame.scan, frame.origin[0], frame.origin[1], frame.lidar_yaw)
         odom_map.integrate(frame.scan, x, y, yaw)
     from scanfuse.evaluate.mapping import rasterize_footprints  # noqa: PLC0415
 

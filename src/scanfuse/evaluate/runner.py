@@ -520,10 +520,10 @@ class Evaluation:
         for record in log.frames:
             frame = record.lidar
             maps.grid('lidar').integrate(
-                frame.scan, frame.origin[0], frame.origin[1], frame.pose.yaw
+                frame.scan, frame.origin[0], frame.origin[1], frame.lidar_yaw
             )
         for frame, scan in fused:
-            maps.grid('obstacle').integrate(scan, frame.origin[0], frame.origin[1], frame.pose.yaw)
+            maps.grid('obstacle').integrate(scan, frame.origin[0], frame.origin[1], frame.lidar_yaw)
         return maps
 
     def result(self, files: list[str]) -> EvaluationResult:
@@ -758,9 +758,9 @@ class _Scorer:
                     false_drop_slots(scan.ranges, twin.ranges, truth.truth)
                 )
             if self.maps is not None:
-                self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.pose.yaw)
+                self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.lidar_yaw)
             if self.costmaps is not None and name in self.costmaps.costmaps:
-                self.costmaps.costmaps[name].update(scan, *frame.origin[:2], frame.pose.yaw)
+                self.costmaps.costmaps[name].update(scan, *frame.origin[:2], frame.lidar_yaw)
         if self.costmaps is not None:
             self.costmaps.robot = (frame.pose.x, frame.pose.y, frame.pose.yaw)
         front = self.front

@@ -302,6 +302,11 @@ class LidarFrame:
     def arrival_ns(self) -> int:
         return self.stamp_ns if self.delivered_ns is None else self.delivered_ns
 
+    @property
+    def lidar_yaw(self) -> float:
+        """The LiDAR's heading in the world: where its scan's angle 0 points."""
+        return self.pose.yaw if self.heading is None else self.heading
+
 
 @dataclass(frozen=True)
 class DepthFrame:
