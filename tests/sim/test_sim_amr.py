@@ -21,6 +21,7 @@ from scanfuse.cli import main
 from scanfuse.evaluate.closed_loop import StreamFeed
 from scanfuse.evaluate.methods import MethodStream
 from scanfuse.sim import SimConfig, SimError, Simulation, Trace, fusion_config
+from scanfuse.sim.recording import robot_topics, static_transforms
 from scanfuse.sim.robot import AMR, AMR_CHASSIS, Mount, RobotSpec, robot_spec
 from scanfuse.sim.worlds import ROBOT_AT_ORIGIN, World, box, room_walls
 from tests.support import REPOSITORY
@@ -75,10 +76,6 @@ def square_room_ranges(origin, yaw, angles):
 
 def fused_scans(world: World, methods: tuple[str, ...], duration: float) -> dict[str, list[Scan]]:
     """Each method's fused scans of a standing AMR, fed as the evaluation feeds them."""
-    # Imported here: importing scanfuse.sim.record at collection would shadow the lazy
-    # `scanfuse.sim.record` function with the module for the tests collected after this one.
-    from scanfuse.sim.record import static_transforms
-
     config = amr_config()
     sim = Simulation(config, world)
     base = fusion_config(config)
@@ -170,8 +167,6 @@ def test_a_low_wall_1_m_behind_the_amr_is_seen_by_the_rear_camera_behind_it():
 
 
 def test_an_amr_bag_holds_the_multi_example_topics_and_scanfuse_bag_fuses_it(tmp_path: Path):
-    from scanfuse.sim.record import robot_topics  # at run time: see fused_scans
-
     bag = tmp_path / 'amr.mcap'
     argv = ['simulate', '--out', str(bag), '--robot', 'amr', '--world', 'room', '--path']
     assert (

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -289,3 +291,22 @@ def test_the_parameter_file_mounts_the_simulated_sensors_and_flags_override_it(t
     assert optical[0, 3] == pytest.approx(0.2)
     assert optical[2, 3] == pytest.approx(0.52)
     assert optical[:3, 2] == pytest.approx([math.cos(0.3), 0.0, -math.sin(0.3)])
+
+
+def test_every_lazy_export_of_the_sim_package_stays_itself_whatever_was_imported_first():
+    # A submodule named like one of the package's exports would replace that export with
+    # the module once anything imports the submodule (the import system binds it on the
+    # package). A fresh interpreter imports every submodule first, then asks for each export.
+    script = (
+        'import importlib, pkgutil, scanfuse.sim as sim\n'
+        'for info in pkgutil.iter_modules(sim.__path__):\n'
+        '    importlib.import_module(f"scanfuse.sim.{info.name}")\n'
+        'import types\n'
+        'bad = [n for n in sim.__all__ if isinstance(getattr(sim, n), types.ModuleType)]\n'
+        'print(bad)\n'
+    )
+    done = subprocess.run(
+        [sys.executable, '-c', script], capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == '[]'

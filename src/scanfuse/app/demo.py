@@ -174,7 +174,7 @@ def record_demo_bag(out: Path, console: Console) -> Path:
     """Drive straight at the bookshelf, record it, fuse it; the fused MCAP file's path."""
     from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
     from scanfuse.sim.drive import scripted_path  # noqa: PLC0415
-    from scanfuse.sim.record import record  # noqa: PLC0415
+    from scanfuse.sim.recording import record  # noqa: PLC0415
     from scanfuse.sim.simulation import SimConfig  # noqa: PLC0415
 
     recorded = out / 'bookshelf_drive.mcap'

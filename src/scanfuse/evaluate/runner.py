@@ -186,7 +186,7 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
 
 def robot_transforms(sim: Simulation) -> list[StampedTransform]:
     """The /tf_static a recording of this robot holds, as the node would receive it."""
-    from scanfuse.sim.record import static_transforms  # noqa: PLC0415
+    from scanfuse.sim.recording import static_transforms  # noqa: PLC0415
 
     return static_transforms(sim.robot)
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
     from scanfuse.sim.errors import SimError
-    from scanfuse.sim.record import RecordSummary, record, static_transforms
+    from scanfuse.sim.recording import RecordSummary, record, static_transforms
     from scanfuse.sim.robot import RobotSpec, WheelOdometry
     from scanfuse.sim.sensors import (
         CAMERAS,
@@ -71,7 +71,7 @@ _WHERE = {
     'Obstacle': 'worlds',
     'PATHS': 'drive',
     'Pose2D': 'worlds',
-    'RecordSummary': 'record',
+    'RecordSummary': 'recording',
     'RobotSpec': 'robot',
     'Rotate': 'drive',
     'SimConfig': 'simulation',
@@ -86,10 +86,10 @@ _WHERE = {
     'World': 'worlds',
     'fusion_config': 'simulation',
     'make_world': 'worlds',
-    'record': 'record',
+    'record': 'recording',
     'save_snapshot': 'snapshot',
     'scripted_path': 'drive',
-    'static_transforms': 'record',
+    'static_transforms': 'recording',
 }
 
 

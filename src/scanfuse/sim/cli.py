@@ -12,7 +12,7 @@ from scanfuse.config import FusionConfig
 from scanfuse.progress import RichProgress
 from scanfuse.sim.drive import scripted_path
 from scanfuse.sim.errors import SimError
-from scanfuse.sim.record import RecordSummary, record
+from scanfuse.sim.recording import RecordSummary, record
 from scanfuse.sim.robot import robot_spec
 from scanfuse.sim.sensors import DepthBackend
 from scanfuse.sim.simulation import SimConfig, robot_mounting
