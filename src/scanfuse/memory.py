@@ -132,12 +132,21 @@ def _forget_and_project_loop(
     count: int,
     turn: int,
     half_cell: float,
+    unrolled: Any,
     out: Any,
 ) -> None:
     """One pass over the store: forget points beyond the radius or older than `oldest_ns`,
     and per slot keep the nearest of the others seen from a sensor at origin (ox, oy) with
-    axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath)."""
-    out[:] = np.inf
+    axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath).
+
+    `unrolled` (3 `turn` values) is the turn laid out three times, so that a point's run of
+    slots never wraps: each slot is a branch-free min, and the copies fold into `out` at the
+    end (a compare-and-branch per slot mispredicts about half the time on cluttered scenes).
+    """
+    unrolled[:] = np.inf
+    scale = 1.0 / increment
+    cell_reach = half_cell * abs(scale)
+    widest = 0.5 * turn - 1.0  # a run never leaves the three copies
     for i in range(keys.size):
         if keys[i] < 0:
             continue
@@ -155,21 +164,23 @@ def _forget_and_project_loop(
         r = math.sqrt(x * x + y * y)
         if r == 0.0:
             continue
-        bearing = fast_atan2(y, x)  # within 2e-4 rad: a slot boundary may shift that much
+        # fast_atan2 is within 2e-4 rad: a slot boundary may shift that much.
+        centre = (fast_atan2(y, x) - angle_min) * scale + 0.5
+        if not 0.0 <= centre < turn:  # rare for a grid that starts near -pi
+            centre -= turn * math.floor(centre / turn)
+        centre += turn  # the middle copy
         # A point stands for its whole cell: it fills every slot the cell's width covers
-        # seen from here (at 0.4 m a 2.5 cm cell spans 3.6 degrees, many 0.33-degree slots).
-        spread = half_cell / r if r > half_cell else 1.0
-        centre = (bearing - angle_min) / increment + 0.5
-        reach = spread / abs(increment)  # slots either side
-        first = math.floor(centre - reach)
-        last = math.floor(centre + reach)
-        slot = first + turn if first < 0 else first - turn if first >= turn else first
-        for _ in range(last - first + 1):
-            if slot < count and r < out[slot]:
-                out[slot] = r
-            slot += 1
-            if slot == turn:
-                slot = 0
+        # seen from here (at 0.4 m a 2.5 cm cell spans 3.6 degrees, many 0.33-degree slots);
+        # a point inside the sensor's own cell spans 1 rad either side.
+        reach = min(cell_reach / r if r > half_cell else abs(scale), widest)
+        first = int(centre - reach)  # positive: int() is floor
+        last = int(centre + reach)
+        for slot in range(first, last + 1):
+            unrolled[slot] = min(unrolled[slot], r)
+    for slot in range(min(count, turn)):
+        out[slot] = min(unrolled[slot], unrolled[slot + turn], unrolled[slot + 2 * turn])
+    for slot in range(turn, count):  # a grid longer than a turn: the old kernel left these
+        out[slot] = np.inf
 
 
 def _load_kernel() -> Callable[..., None]:
@@ -196,6 +207,7 @@ class ObstacleMemory:
         self._y = np.zeros(side * side)
         self._seen_ns = np.zeros(side * side, dtype=np.int64)
         self._key = np.full(side * side, -1, dtype=np.int64)  # absolute cell, -1: empty
+        self._unrolled = np.empty(0)  # the projection's scratch (`_forget_and_project_loop`)
         self.cleared = 0
 
     def __len__(self) -> int:
@@ -229,6 +241,18 @@ class ObstacleMemory:
         self._seen_ns[index] = stamp_ns
         self._key[index] = key
 
+    def add_dense(self, x: F64, y: F64, stamp_ns: int, *, min_count: int) -> int:
+        """Remember the points (odometry frame) of the cells that `min_count` or more of them
+        fall in, one per cell; how many cells. Many pixels of one surface fill a cell, while
+        a stray pixel of floor noise inside the slab lies alone in its cell."""
+        keep = np.isfinite(x) & np.isfinite(y)
+        x, y = x[keep], y[keep]
+        index, _ = self._cells(x, y)
+        counts = np.bincount(index, minlength=self._key.size)
+        dense = counts[index] >= min_count
+        self.add(x[dense], y[dense], stamp_ns)
+        return int(np.count_nonzero(counts >= min_count))
+
     def scan(
         self, sensor: Placement, grid: AngleGrid, *, robot: tuple[float, float], now_ns: int
     ) -> F64:
@@ -236,6 +260,8 @@ class ObstacleMemory:
         the ranges of the others per slot of `grid`, seen from `sensor` (NaN: none)."""
         out = np.empty(grid.count, dtype=np.float64)
         turn = round(TWO_PI / abs(grid.angle_increment))
+        if self._unrolled.size != 3 * turn:
+            self._unrolled = np.empty(3 * turn)
         _KERNEL(
             self._key,
             self._x,
@@ -256,6 +282,7 @@ class ObstacleMemory:
             grid.count,
             turn,
             self.settings.cell / 2.0,
+            self._unrolled,
             out,
         )
         out[np.isinf(out)] = np.nan
@@ -390,6 +417,57 @@ def _load_clear() -> Callable[..., int]:
 
 
 _CLEAR = _load_clear()
+
+
+def slab_points(
+    depth: npt.NDArray[np.generic],
+    camera: CameraModel,
+    odom_to_optical: Transform,
+    *,
+    slab: tuple[float, float],
+    range_min: float,
+    range_max: float,
+) -> tuple[F64, F64]:
+    """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
+
+    Depth along the optical axis within [range_min, range_max] (uint16 millimetres, 0 no
+    return; float metres, NaN none), heights above the odometry frame's z = 0 within
+    `slab`: the points the obstacle method bins by slot, before it keeps only the near
+    cluster of each (the faces behind it, a box's far edge seen over its top, are here too).
+    """
+    image = np.asarray(depth)
+    z = image.astype(np.float64) * (1e-3 if image.dtype == np.uint16 else 1.0)
+    with np.errstate(invalid='ignore'):
+        valid = (z >= range_min) & (z <= range_max)
+    x_n, y_n = camera.normalized_coordinates
+    z = z[valid]
+    optical = np.stack([x_n[valid] * z, y_n[valid] * z, z], axis=1)
+    rotation = odom_to_optical.rotation_matrix
+    odom = optical @ rotation.T + np.asarray(odom_to_optical.translation)
+    inside = (odom[:, 2] >= slab[0]) & (odom[:, 2] <= slab[1])
+    return odom[inside, 0].copy(), odom[inside, 1].copy()
+
+
+def not_nearer_than(x: F64, y: F64, scan: Scan, sensor: Placement) -> npt.NDArray[np.bool_]:
+    """Which points (odometry frame) lie in a slot of `scan` with a finite in-range reading,
+    seen from `sensor`, no nearer than that reading.
+
+    The obstacle scan's reading is its robust near edge (the near cluster of a slot's
+    points): a pixel nearer than it is the short tail of depth noise, or too few to be an
+    obstacle at all where the slot reads free.
+    """
+    dx, dy = x - sensor.x, y - sensor.y
+    sx = sensor.xx * dx + sensor.xy * dy
+    sy = sensor.yx * dx + sensor.yy * dy
+    slot = scan.grid.slot_of(np.arctan2(sy, sx))
+    ranges = scan.ranges.astype(np.float64)
+    reading = np.where(
+        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
+    )
+    with np.errstate(invalid='ignore'):
+        usable = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
+        keep: npt.NDArray[np.bool_] = usable & (np.hypot(sx, sy) >= reading)
+    return keep
 
 
 def points_of_scan(scan: Scan, sensor: Placement) -> tuple[F64, F64]:

@@ -48,7 +48,14 @@ from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
-from scanfuse.memory import MemorySettings, ObstacleMemory, Placement, points_of_scan
+from scanfuse.memory import (
+    MemorySettings,
+    ObstacleMemory,
+    Placement,
+    not_nearer_than,
+    points_of_scan,
+    slab_points,
+)
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.transforms import Extrinsics, Transform
@@ -70,6 +77,8 @@ T = TypeVar('T')
 NANOSECONDS = 1_000_000_000
 # Frames kept for pairing: at 30 Hz and max_time_offset 0.1 s about 7 are ever useful.
 MAX_FRAMES = 16
+# Pixels of one depth frame a memory cell must hold to be remembered (`_add_slab`).
+MEMORY_CELL_PIXELS = 3
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
 
@@ -579,9 +588,11 @@ class FusionStream(Generic[T]):
             self._drop_memory('odometry jumped (reset or relocalisation)')
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
-        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
-            self._clear_seen(memory, frame, extrinsics)
         placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
+        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
+            seen_from = self._clear_seen(memory, frame, extrinsics)
+            if seen_from is not None and output.depth_scan is not None:
+                self._add_slab(memory, frame, seen_from, output.depth_scan, placement)
         if output.depth_scan is not None:
             memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
         ranges = memory.scan(
@@ -601,22 +612,48 @@ class FusionStream(Generic[T]):
 
     def _clear_seen(
         self, memory: ObstacleMemory, frame: DepthFrame, extrinsics: Extrinsics
-    ) -> None:
+    ) -> Transform | None:
+        """Clear what `frame` sees free; the camera's optical frame in odom (None: unknown)."""
         camera_base = self.odometry.pose_at(frame.stamp_ns)
         if camera_base.pose is None or camera_base.segment != self._memory_segment:
-            return
+            return None
         self._cleared_with = frame.stamp_ns
         base = camera_base.pose
         odom_to_base = Transform.from_rpy(0.0, 0.0, base.yaw, (base.x, base.y, 0.0))
+        odom_to_optical = odom_to_base @ extrinsics.base_to_camera_optical
         config = self.config
         self.counts.memory_cleared += memory.clear_seen(
             frame.depth,
             frame.camera,
-            odom_to_base @ extrinsics.base_to_camera_optical,
+            odom_to_optical,
             slab=(config.min_obstacle_height, config.max_obstacle_height),
             range_min=config.range_min,
             range_max=config.range_max,
         )
+        return odom_to_optical
+
+    def _add_slab(
+        self,
+        memory: ObstacleMemory,
+        frame: DepthFrame,
+        odom_to_optical: Transform,
+        depth_scan: Scan,
+        placement: Placement,
+    ) -> None:
+        """Remember every slab pixel of `frame` behind its slot's obstacle reading, one per
+        dense cell: a box's sides and far corners, not only the face nearest the LiDAR, so
+        that what clearing forgets of a place is replaced by all the camera sees there."""
+        config = self.config
+        x, y = slab_points(
+            frame.depth,
+            frame.camera,
+            odom_to_optical,
+            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            range_min=config.range_min,
+            range_max=config.range_max,
+        )
+        behind = not_nearer_than(x, y, depth_scan, placement)
+        memory.add_dense(x[behind], y[behind], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS)
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns
