@@ -52,9 +52,10 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
+    lidar_misses,
     not_nearer_than,
-    points_of_scan,
     slab_points,
+    unseen_by,
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
@@ -79,6 +80,9 @@ NANOSECONDS = 1_000_000_000
 MAX_FRAMES = 16
 # Pixels of one depth frame a memory cell must hold to be remembered (`_add_slab`).
 MEMORY_CELL_PIXELS = 3
+# A remembered point the LiDAR sees (its reading no farther than the point by this much,
+# metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
+LIDAR_SEES_MARGIN = (0.05, 0.02)
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
 
@@ -592,9 +596,10 @@ class FusionStream(Generic[T]):
         if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
             seen_from = self._clear_seen(memory, frame, extrinsics)
             if seen_from is not None and output.depth_scan is not None:
-                self._add_slab(memory, frame, seen_from, output.depth_scan, placement)
+                self._add_slab(memory, frame, seen_from, output.depth_scan, scan, placement)
         if output.depth_scan is not None:
-            memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
+            unseen = lidar_misses(output.depth_scan, scan, LIDAR_SEES_MARGIN)
+            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen)
         ranges = memory.scan(
             placement, scan.grid, robot=(base.pose.x, base.pose.y), now_ns=scan.stamp_ns
         )
@@ -638,6 +643,7 @@ class FusionStream(Generic[T]):
         frame: DepthFrame,
         odom_to_optical: Transform,
         depth_scan: Scan,
+        lidar: Scan,
         placement: Placement,
     ) -> None:
         """Remember every slab pixel of `frame` behind its slot's obstacle reading, one per
@@ -652,8 +658,9 @@ class FusionStream(Generic[T]):
             range_min=config.range_min,
             range_max=config.range_max,
         )
-        behind = not_nearer_than(x, y, depth_scan, placement)
-        memory.add_dense(x[behind], y[behind], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS)
+        keep = not_nearer_than(x, y, depth_scan, placement)
+        keep &= unseen_by(x, y, lidar, placement, LIDAR_SEES_MARGIN)
+        memory.add_dense(x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS)
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns
