@@ -197,3 +197,11 @@ def test_a_scan_adds_its_kept_in_range_readings_at_their_place_in_odom():
     # 1 m straight ahead (+y): (1, 3); 2 m to the LiDAR's left (-x in odom): (-1, 2).
     np.testing.assert_allclose(x[order], [-1.0, 1.0], atol=1e-9)
     np.testing.assert_allclose(y[order], [2.0, 3.0], atol=1e-9)
+
+
+def test_a_scan_seen_from_a_nan_placement_adds_nothing():
+    memory = ObstacleMemory()
+    scan = Scan(-math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.ones(4, np.float32))
+    sensor = Placement(math.nan, 0.0, 1.0, 0.0, 0.0, 1.0)
+    memory.add_scan(scan, sensor, 0, np.ones(4, dtype=bool))
+    assert len(memory) == 0

@@ -629,6 +629,8 @@ def _add_scan_loop(
         sy = r * sin[k]
         x = ox + xx * sx + yx * sy
         y = oy + xy * sx + yy * sy
+        if not (math.isfinite(x) and math.isfinite(y)):  # `add` drops them too
+            continue
         i = math.floor(x / cell)
         j = math.floor(y / cell)
         index = (i % side) * side + (j % side)  # Python's modulo: never negative
