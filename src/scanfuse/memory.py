@@ -2,23 +2,30 @@
 
 The depth camera sees about 87 degrees, the LiDAR 360; a low obstacle that leaves the
 camera's view falls back to the LiDAR's reading, which passes over it. The memory keeps
-the camera's obstacle points (the depth scan's readings, one nearest point per slot) in
-the odometry frame and merges them into every output scan, seen from the LiDAR at the
-scan's stamp.
+the camera's obstacle points in the odometry frame and merges them into every output
+scan, seen from the LiDAR at the scan's stamp. What it takes in (`FusionStream`): the
+depth scan's reading of every slot, and per depth frame every slab pixel no nearer than
+its slot's reading (`slab_points`, `not_nearer_than`: a box's sides, its top back to the
+far edge, not only the face nearest the LiDAR) in cells that several pixels fill
+(`add_dense`: stray floor noise inside the slab lies alone in its cell); of both, only
+what the LiDAR does not see at its own height (`unseen_by`): the LiDAR sees that again
+from anywhere, and a wall remembered on drifting odometry would stand in front of it.
 
 Store: a rolling grid of `cell` metre cells around the robot, one point per cell (the
 newest seen there, exact coordinates kept), so its size is bounded by construction:
 (2 radius / cell)^2 cells. A point is forgotten when it is more than `radius` from the
 robot, older than `max_age`, or when the camera looks at its place again and sees it
 free. Only the camera clears: the LiDAR's plane passes over low obstacles by design.
+Drawn into a scan, neighbouring cells are joined by the line between their points, and a
+point on its own is a quarter cell wide (`_forget_and_project_loop`).
 
 Clearing (per depth frame fused): the memory holds, for every place, what the camera saw
 the last time it looked there. A remembered point whose whole slab column (a few heights:
 the obstacle's own height is not kept) projects into the image within the camera's range,
 its bottom onto a pixel with depth, none showing something nearer in front of it, has been
 looked at:
-it is forgotten, and what the camera sees there now (the depth scan, added right after)
-takes its place. So a thing that went away is gone within one frame, noisy samples of one
+it is forgotten, and what the camera sees there now (added right after) takes its place.
+So a thing that went away is gone within one frame, noisy samples of one
 surface never pile up (the nearest of many would be biased short), and a point hidden
 behind a nearer obstacle, or partly outside the image (too close, below the view), is kept.
 """
@@ -48,6 +55,9 @@ if TYPE_CHECKING:
 
     F64 = npt.NDArray[np.float64]
 
+# How wide a remembered point is on its own, as a share of the cell: the gaps between
+# neighbouring cells are drawn as lines (`_forget_and_project_loop`).
+OWN_WIDTH = 0.25
 # Cells kept at most: 2^21 (about 60 MB of arrays); a larger radius needs larger cells.
 MAX_CELLS = 1 << 21
 # Heights of the slab a remembered point is tried at, as fractions from bottom to top.
@@ -131,14 +141,36 @@ def _forget_and_project_loop(
     increment: float,
     count: int,
     turn: int,
-    half_cell: float,
+    half_width: float,
+    side: int,
+    centres: Any,
+    ranges: Any,
+    unrolled: Any,
     out: Any,
 ) -> None:
     """One pass over the store: forget points beyond the radius or older than `oldest_ns`,
     and per slot keep the nearest of the others seen from a sensor at origin (ox, oy) with
-    axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath)."""
-    out[:] = np.inf
+    axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath).
+
+    Each point fills the slots `half_width` either side of it covers; then every point and
+    each remembered neighbour cell (east, north, north-east, north-west: each pair once)
+    fill the slots between them at the nearer of their two ranges (a point whose four
+    side neighbours are all remembered lies inside an area and draws none: seen from
+    outside, the area's border is no farther than a cell behind). A surface kept as one
+    point per cell is so drawn as the polyline through its points: no gaps between cells
+    at any range, and no overhang past its ends (a point widened by half a cell either side
+    hangs that far past a box's edge into the free slot beside it: a false obstacle).
+
+    `unrolled` (3 `turn` values) is the turn laid out three times, so that a run of slots
+    never wraps: each slot is a branch-free min, and the copies fold into `out` at the end.
+    `centres` and `ranges` (one per cell) hold each point's slot coordinate and range.
+    """
+    unrolled[:] = np.inf
+    scale = 1.0 / increment
+    own_reach = half_width * abs(scale)
+    widest = 0.5 * turn - 1.0  # a run never leaves the three copies
     for i in range(keys.size):
+        ranges[i] = -1.0
         if keys[i] < 0:
             continue
         px = xs[i]
@@ -155,21 +187,63 @@ def _forget_and_project_loop(
         r = math.sqrt(x * x + y * y)
         if r == 0.0:
             continue
-        bearing = fast_atan2(y, x)  # within 2e-4 rad: a slot boundary may shift that much
-        # A point stands for its whole cell: it fills every slot the cell's width covers
-        # seen from here (at 0.4 m a 2.5 cm cell spans 3.6 degrees, many 0.33-degree slots).
-        spread = half_cell / r if r > half_cell else 1.0
-        centre = (bearing - angle_min) / increment + 0.5
-        reach = spread / abs(increment)  # slots either side
-        first = math.floor(centre - reach)
-        last = math.floor(centre + reach)
-        slot = first + turn if first < 0 else first - turn if first >= turn else first
-        for _ in range(last - first + 1):
-            if slot < count and r < out[slot]:
-                out[slot] = r
-            slot += 1
-            if slot == turn:
-                slot = 0
+        # fast_atan2 is within 2e-4 rad: a slot boundary may shift that much.
+        centre = (fast_atan2(y, x) - angle_min) * scale + 0.5
+        if not 0.0 <= centre < turn:  # rare for a grid that starts near -pi
+            centre -= turn * math.floor(centre / turn)
+        centre += turn  # the middle copy
+        centres[i] = centre
+        ranges[i] = r
+        reach = min(own_reach / r if r > half_width else abs(scale), widest)
+        first = int(centre - reach)  # positive: int() is floor
+        last = int(centre + reach)
+        for slot in range(first, last + 1):
+            unrolled[slot] = min(unrolled[slot], r)
+    east = 1 << 31  # key steps: `ObstacleMemory._cells`
+    for column in range(side):
+        right = column + 1 if column + 1 < side else 0
+        left = column - 1 if column > 0 else side - 1
+        for row in range(side):
+            i = column * side + row
+            r = ranges[i]
+            if r < 0.0:
+                continue
+            key = keys[i]
+            up = row + 1 if row + 1 < side else 0
+            down = row - 1 if row > 0 else side - 1
+            if (
+                keys[right * side + row] == key + east
+                and keys[left * side + row] == key - east
+                and keys[column * side + up] == key + 1
+                and keys[column * side + down] == key - 1
+            ):
+                continue  # inside a remembered area: its border is nearer from outside
+            centre = centres[i]
+            for neighbour in range(4):
+                if neighbour == 0:
+                    j, step = right * side + row, east
+                elif neighbour == 1:
+                    j, step = column * side + up, 1
+                elif neighbour == 2:
+                    j, step = right * side + up, east + 1
+                else:
+                    j, step = left * side + up, 1 - east
+                if ranges[j] < 0.0 or keys[j] != key + step:
+                    continue
+                other = centres[j] - centre
+                if other > 0.5 * turn:
+                    other -= turn
+                elif other < -0.5 * turn:
+                    other += turn
+                first = int(centre + min(other, 0.0))
+                last = int(centre + max(other, 0.0))
+                nearer = min(r, ranges[j])
+                for slot in range(first, last + 1):
+                    unrolled[slot] = min(unrolled[slot], nearer)
+    for slot in range(min(count, turn)):
+        out[slot] = min(unrolled[slot], unrolled[slot + turn], unrolled[slot + 2 * turn])
+    for slot in range(turn, count):  # a grid longer than a turn: the old kernel left these
+        out[slot] = np.inf
 
 
 def _load_kernel() -> Callable[..., None]:
@@ -196,6 +270,12 @@ class ObstacleMemory:
         self._y = np.zeros(side * side)
         self._seen_ns = np.zeros(side * side, dtype=np.int64)
         self._key = np.full(side * side, -1, dtype=np.int64)  # absolute cell, -1: empty
+        # The projection's scratch (`_forget_and_project_loop`).
+        self._unrolled = np.empty(0)
+        self._centres = np.zeros(side * side)
+        self._trig_grid: tuple[float, float, int] | None = None  # `add_scan`'s cos, sin
+        self._trig = (np.zeros(0), np.zeros(0))
+        self._ranges = np.zeros(side * side)
         self.cleared = 0
 
     def __len__(self) -> int:
@@ -229,6 +309,51 @@ class ObstacleMemory:
         self._seen_ns[index] = stamp_ns
         self._key[index] = key
 
+    def add_scan(
+        self, scan: Scan, sensor: Placement, stamp_ns: int, keep: npt.NDArray[np.bool_]
+    ) -> None:
+        """Remember the finite in-range readings of `scan` whose `keep` is set, seen from
+        `sensor` at `stamp_ns` (what `add(*points_of_scan(scan, sensor))` does, per reading:
+        it runs on every output scan)."""
+        grid = (scan.angle_min, scan.angle_increment, len(scan))
+        if self._trig_grid != grid:
+            angles = scan.angles()
+            self._trig = (np.cos(angles), np.sin(angles))
+            self._trig_grid = grid
+        _ADD_SCAN(
+            scan.ranges,
+            np.ascontiguousarray(keep),
+            scan.range_min,
+            scan.range_max,
+            self._trig[0],
+            self._trig[1],
+            sensor.x,
+            sensor.y,
+            sensor.xx,
+            sensor.xy,
+            sensor.yx,
+            sensor.yy,
+            self.settings.cell,
+            self.settings.side,
+            stamp_ns,
+            self._key,
+            self._x,
+            self._y,
+            self._seen_ns,
+        )
+
+    def add_dense(self, x: F64, y: F64, stamp_ns: int, *, min_count: int) -> int:
+        """Remember the points (odometry frame) of the cells that `min_count` or more of them
+        fall in, one per cell; how many cells. Many pixels of one surface fill a cell, while
+        a stray pixel of floor noise inside the slab lies alone in its cell."""
+        keep = np.isfinite(x) & np.isfinite(y)
+        x, y = x[keep], y[keep]
+        index, _ = self._cells(x, y)
+        counts = np.bincount(index, minlength=self._key.size)
+        dense = counts[index] >= min_count
+        self.add(x[dense], y[dense], stamp_ns)
+        return int(np.count_nonzero(counts >= min_count))
+
     def scan(
         self, sensor: Placement, grid: AngleGrid, *, robot: tuple[float, float], now_ns: int
     ) -> F64:
@@ -236,6 +361,8 @@ class ObstacleMemory:
         the ranges of the others per slot of `grid`, seen from `sensor` (NaN: none)."""
         out = np.empty(grid.count, dtype=np.float64)
         turn = round(TWO_PI / abs(grid.angle_increment))
+        if self._unrolled.size != 3 * turn:
+            self._unrolled = np.empty(3 * turn)
         _KERNEL(
             self._key,
             self._x,
@@ -255,7 +382,11 @@ class ObstacleMemory:
             grid.angle_increment,
             grid.count,
             turn,
-            self.settings.cell / 2.0,
+            OWN_WIDTH * self.settings.cell / 2.0,
+            self.settings.side,
+            self._centres,
+            self._ranges,
+            self._unrolled,
             out,
         )
         out[np.isinf(out)] = np.nan
@@ -390,6 +521,208 @@ def _load_clear() -> Callable[..., int]:
 
 
 _CLEAR = _load_clear()
+
+
+def slab_points(
+    depth: npt.NDArray[np.generic],
+    camera: CameraModel,
+    odom_to_optical: Transform,
+    *,
+    slab: tuple[float, float],
+    range_min: float,
+    range_max: float,
+) -> tuple[F64, F64]:
+    """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
+
+    Depth along the optical axis within [range_min, range_max] (uint16 millimetres, 0 no
+    return; float metres, NaN none), heights above the odometry frame's z = 0 within
+    `slab`: the points the obstacle method bins by slot, before it keeps only the near
+    cluster of each (the faces behind it, a box's far edge seen over its top, are here too).
+    """
+    image = np.ascontiguousarray(depth)
+    metres = image.dtype != np.uint16
+    pixels = image.astype(np.float32) if metres else image
+    x_n, y_n = camera.normalized_coordinates
+    out_x = np.empty(image.size)
+    out_y = np.empty(image.size)
+    found = _SLAB(
+        pixels,
+        1.0 if metres else 1e-3,
+        x_n,
+        y_n,
+        odom_to_optical.rotation_matrix,
+        np.asarray(odom_to_optical.translation, dtype=np.float64),
+        slab[0],
+        slab[1],
+        range_min,
+        range_max,
+        out_x,
+        out_y,
+    )
+    return out_x[:found].copy(), out_y[:found].copy()
+
+
+def _slab_loop(
+    depth: Any,
+    scale: float,
+    x_n: Any,
+    y_n: Any,
+    rotation: Any,
+    origin: Any,
+    low: float,
+    high: float,
+    range_min: float,
+    range_max: float,
+    out_x: Any,
+    out_y: Any,
+) -> int:
+    """`slab_points` one pixel at a time: how many points it wrote to out_x, out_y."""
+    rows, columns = depth.shape
+    found = 0
+    for v in range(rows):
+        for u in range(columns):
+            z = depth[v, u] * scale
+            if not range_min <= z <= range_max:  # NaN and 0 (no return) fail too
+                continue
+            ox = x_n[v, u] * z
+            oy = y_n[v, u] * z
+            height = rotation[2, 0] * ox + rotation[2, 1] * oy + rotation[2, 2] * z + origin[2]
+            if not low <= height <= high:
+                continue
+            out_x[found] = (
+                rotation[0, 0] * ox + rotation[0, 1] * oy + rotation[0, 2] * z + origin[0]
+            )
+            out_y[found] = (
+                rotation[1, 0] * ox + rotation[1, 1] * oy + rotation[1, 2] * z + origin[1]
+            )
+            found += 1
+    return found
+
+
+def _add_scan_loop(
+    ranges: Any,
+    keep: Any,
+    range_min: float,
+    range_max: float,
+    cos: Any,
+    sin: Any,
+    ox: float,
+    oy: float,
+    xx: float,
+    xy: float,
+    yx: float,
+    yy: float,
+    cell: float,
+    side: int,
+    stamp_ns: int,
+    keys: Any,
+    xs: Any,
+    ys: Any,
+    seen_ns: Any,
+) -> None:
+    """`ObstacleMemory.add_scan` one reading at a time (cells as `ObstacleMemory._cells`)."""
+    for k in range(ranges.size):
+        r = ranges[k]
+        if not keep[k] or not range_min <= r <= range_max:
+            continue
+        sx = r * cos[k]
+        sy = r * sin[k]
+        x = ox + xx * sx + yx * sy
+        y = oy + xy * sx + yy * sy
+        if not (math.isfinite(x) and math.isfinite(y)):  # `add` drops them too
+            continue
+        i = math.floor(x / cell)
+        j = math.floor(y / cell)
+        index = (i % side) * side + (j % side)  # Python's modulo: never negative
+        xs[index] = x
+        ys[index] = y
+        seen_ns[index] = stamp_ns
+        keys[index] = (i + (1 << 30)) * (1 << 31) + (j + (1 << 30))
+
+
+def _load_add_scan() -> Callable[..., None]:
+    try:
+        import numba  # noqa: PLC0415
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return _add_scan_loop
+    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_add_scan_loop)
+    return kernel
+
+
+_ADD_SCAN = _load_add_scan()
+
+
+def lidar_misses(
+    depth_scan: Scan, lidar: Scan, margin: tuple[float, float]
+) -> npt.NDArray[np.bool_]:
+    """Per slot of two scans on one grid: the LiDAR does not see the depth scan's reading
+    (`unseen_by` for points that lie in their own slot)."""
+    reading = lidar.ranges.astype(np.float64)
+    reach = depth_scan.ranges.astype(np.float64)
+    with np.errstate(invalid='ignore'):
+        usable = (reading >= lidar.range_min) & (reading <= lidar.range_max)
+        sees = usable & (reading <= reach * (1.0 + margin[1]) + margin[0])
+    misses: npt.NDArray[np.bool_] = ~sees
+    return misses
+
+
+def _load_slab() -> Callable[..., int]:
+    try:
+        import numba  # noqa: PLC0415
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return _slab_loop
+    kernel: Callable[..., int] = numba.njit(cache=True, nogil=True)(_slab_loop)
+    return kernel
+
+
+_SLAB = _load_slab()
+
+
+def not_nearer_than(x: F64, y: F64, scan: Scan, sensor: Placement) -> npt.NDArray[np.bool_]:
+    """Which points (odometry frame) lie in a slot of `scan` with a finite in-range reading,
+    seen from `sensor`, no nearer than that reading.
+
+    The obstacle scan's reading is its robust near edge (the near cluster of a slot's
+    points): a pixel nearer than it is the short tail of depth noise, or too few to be an
+    obstacle at all where the slot reads free.
+    """
+    dx, dy = x - sensor.x, y - sensor.y
+    sx = sensor.xx * dx + sensor.xy * dy
+    sy = sensor.yx * dx + sensor.yy * dy
+    slot = scan.grid.slot_of(np.arctan2(sy, sx))
+    ranges = scan.ranges.astype(np.float64)
+    reading = np.where(
+        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
+    )
+    with np.errstate(invalid='ignore'):
+        usable = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
+        keep: npt.NDArray[np.bool_] = usable & (np.hypot(sx, sy) >= reading)
+    return keep
+
+
+def unseen_by(
+    x: F64, y: F64, lidar: Scan, sensor: Placement, margin: tuple[float, float]
+) -> npt.NDArray[np.bool_]:
+    """Which points (odometry frame) the LiDAR at `sensor` does not see: its reading in the
+    point's slot is not a finite in-range range, or lies beyond the point by more than
+    `margin` (metres, share of the range).
+
+    What the LiDAR sees at its own height it sees again from anywhere: the memory need not
+    keep it, and a wall kept on drifting odometry stands in front of the wall.
+    """
+    dx, dy = x - sensor.x, y - sensor.y
+    sx = sensor.xx * dx + sensor.xy * dy
+    sy = sensor.yx * dx + sensor.yy * dy
+    slot = lidar.grid.slot_of(np.arctan2(sy, sx))
+    ranges = lidar.ranges.astype(np.float64)
+    reading = np.where(
+        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
+    )
+    reach = np.hypot(sx, sy)
+    with np.errstate(invalid='ignore'):
+        usable = np.isfinite(reading) & (reading >= lidar.range_min) & (reading <= lidar.range_max)
+        sees = usable & (reading <= reach * (1.0 + margin[1]) + margin[0])
+    return ~sees
 
 
 def points_of_scan(scan: Scan, sensor: Placement) -> tuple[F64, F64]:

@@ -48,7 +48,15 @@ from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
-from scanfuse.memory import MemorySettings, ObstacleMemory, Placement, points_of_scan
+from scanfuse.memory import (
+    MemorySettings,
+    ObstacleMemory,
+    Placement,
+    lidar_misses,
+    not_nearer_than,
+    slab_points,
+    unseen_by,
+)
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.scan import full_circle
@@ -71,6 +79,11 @@ T = TypeVar('T')
 NANOSECONDS = 1_000_000_000
 # Frames kept for pairing: at 30 Hz and max_time_offset 0.1 s about 7 are ever useful.
 MAX_FRAMES = 16
+# Pixels of one depth frame a memory cell must hold to be remembered (`_add_slab`).
+MEMORY_CELL_PIXELS = 3
+# A remembered point the LiDAR sees (its reading no farther than the point by this much,
+# metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
+LIDAR_SEES_MARGIN = (0.05, 0.02)
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
 
@@ -588,30 +601,34 @@ class FusionStream(Generic[T]):
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         config = self.config
-        if (
-            frame is not None
-            and extrinsics is not None
-            and frame.stamp_ns != self._cleared_with
-            and self._clear_seen(
+        slab = (config.min_obstacle_height, config.max_obstacle_height)
+        placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
+        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
+            seen_from = self._clear_seen(
                 memory,
                 frame.stamp_ns,
                 frame.depth,
                 frame.camera,
                 extrinsics.base_to_camera_optical,
-                (config.min_obstacle_height, config.max_obstacle_height),
+                slab,
             )
-        ):
-            self._cleared_with = frame.stamp_ns
+            if seen_from is not None:
+                self._cleared_with = frame.stamp_ns
+                if output.depth_scan is not None:
+                    self._add_slab(memory, frame, seen_from, output.depth_scan, scan, placement)
         # The other cameras clear what they see free too (a rear camera behind a reversing
         # robot), each frame once, with its own slab.
         for seen in self.extras.seen:
-            if self._extra_cleared_with.get(seen.name) != seen.stamp_ns and self._clear_seen(
-                memory, seen.stamp_ns, seen.depth, seen.camera, seen.base_to_optical, seen.slab
+            if self._extra_cleared_with.get(seen.name) != seen.stamp_ns and (
+                self._clear_seen(
+                    memory, seen.stamp_ns, seen.depth, seen.camera, seen.base_to_optical, seen.slab
+                )
+                is not None
             ):
                 self._extra_cleared_with[seen.name] = seen.stamp_ns
-        placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
         if output.depth_scan is not None:
-            memory.add(*points_of_scan(output.depth_scan, placement), scan.stamp_ns)
+            unseen = lidar_misses(output.depth_scan, scan, LIDAR_SEES_MARGIN)
+            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen)
         ranges = memory.scan(
             placement, scan.grid, robot=(base.pose.x, base.pose.y), now_ns=scan.stamp_ns
         )
@@ -635,23 +652,50 @@ class FusionStream(Generic[T]):
         camera: CameraModel,
         base_to_optical: Transform,
         slab: tuple[float, float],
-    ) -> bool:
-        """Forget what one depth frame sees free; False when odometry cannot place it (yet)."""
+    ) -> Transform | None:
+        """Forget what one depth frame sees free; the camera's optical frame in odom (None:
+        odometry cannot place the frame yet)."""
         camera_base = self.odometry.pose_at(stamp_ns)
         if camera_base.pose is None or camera_base.segment != self._memory_segment:
-            return False
+            return None
         base = camera_base.pose
         odom_to_base = Transform.from_rpy(0.0, 0.0, base.yaw, (base.x, base.y, 0.0))
+        odom_to_optical = odom_to_base @ base_to_optical
         config = self.config
         self.counts.memory_cleared += memory.clear_seen(
             depth,
             camera,
-            odom_to_base @ base_to_optical,
+            odom_to_optical,
             slab=slab,
             range_min=config.range_min,
             range_max=config.range_max,
         )
-        return True
+        return odom_to_optical
+
+    def _add_slab(
+        self,
+        memory: ObstacleMemory,
+        frame: DepthFrame,
+        odom_to_optical: Transform,
+        depth_scan: Scan,
+        lidar: Scan,
+        placement: Placement,
+    ) -> None:
+        """Remember every slab pixel of `frame` behind its slot's obstacle reading, one per
+        dense cell: a box's sides and far corners, not only the face nearest the LiDAR, so
+        that what clearing forgets of a place is replaced by all the camera sees there."""
+        config = self.config
+        x, y = slab_points(
+            frame.depth,
+            frame.camera,
+            odom_to_optical,
+            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            range_min=config.range_min,
+            range_max=config.range_max,
+        )
+        keep = not_nearer_than(x, y, depth_scan, placement)
+        keep &= unseen_by(x, y, lidar, placement, LIDAR_SEES_MARGIN)
+        memory.add_dense(x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS)
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns

@@ -13,7 +13,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanfuse.evaluate.mapping import GridSpec, rasterize_footprints
 from scanfuse.evaluate.metrics import SlotTruth, near_footprint_slots
+from scanfuse.memory import slab_points
 from scanfuse.sim.truth import TruthScanner
 
 if TYPE_CHECKING:
@@ -25,10 +27,88 @@ if TYPE_CHECKING:
     from scanfuse.scan import AngleGrid
     from scanfuse.sim.simulation import LidarFrame
     from scanfuse.sim.worlds import Drop, Obstacle
-    from scanfuse.transforms import Extrinsics
+    from scanfuse.transforms import Extrinsics, Transform
 
 # Recall counts low obstacles the camera sees within this distance (the issue's 3 m).
 VIEW_RANGE = 3.0
+# `SeenSurfaces`: cells this size; a pixel shows an obstacle when it falls in a cell its
+# footprint touches or one beside it (within one cell: inside the 5 cm tolerance).
+SEEN_CELL = 0.025
+# A drop's edge is shown by floor pixels this near the floor plane, metres.
+FLOOR_BAND = 0.03
+
+
+class SeenSurfaces:
+    """Which places of a world's slab obstacles (and drop-offs) the depth camera has shown.
+
+    Each depth image, placed at the camera's true pose, marks the cells of its slab pixels
+    that lie on an obstacle's footprint (within a cell), and of its floor pixels that lie
+    on a drop's edge; a place counts as shown when its cell or one beside it is marked
+    (`shown`). Noise-free placement (the simulator's true pose): it says what the camera
+    showed, whatever the robot's odometry believed.
+    """
+
+    def __init__(
+        self,
+        obstacles: tuple[Obstacle, ...],
+        bounds: tuple[float, float, float, float],
+        *,
+        slab: tuple[float, float],
+        range_min: float,
+        range_max: float,
+        drops: tuple[Drop, ...] = (),
+    ) -> None:
+        self.spec = GridSpec.covering(bounds, SEEN_CELL, margin=0.3)
+        self.slab = slab
+        self.range_min = range_min
+        self.range_max = range_max
+        polygons = [o.footprint for o in obstacles if o.overlaps_slab(*slab)]
+        self._on_obstacle = _grow(rasterize_footprints(self.spec, polygons))
+        rectangles = [
+            np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+            for x0, x1, y0, y1 in (drop.rectangle for drop in drops)
+        ]
+        self._on_drop = _grow(rasterize_footprints(self.spec, rectangles)) if drops else None
+        self.marked = np.zeros((self.spec.height, self.spec.width), dtype=bool)
+
+    def add(self, depth: npt.NDArray[np.generic], camera: CameraModel, pose: Transform) -> None:
+        """One depth image; `pose` is its optical frame in the world (z = 0 the floor)."""
+        limits = {'range_min': self.range_min, 'range_max': self.range_max}
+        self._mark(slab_points(depth, camera, pose, slab=self.slab, **limits), self._on_obstacle)
+        if self._on_drop is not None:
+            band = (-FLOOR_BAND, FLOOR_BAND)
+            self._mark(slab_points(depth, camera, pose, slab=band, **limits), self._on_drop)
+
+    def _mark(
+        self,
+        points: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
+        surface: npt.NDArray[np.bool_],
+    ) -> None:
+        column, row, inside = self.spec.cell_of(*points)
+        column, row = column[inside], row[inside]
+        on = surface[row, column]
+        self.marked[row[on], column[on]] = True
+
+    def shown(
+        self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.bool_]:
+        """Whether each place (world frame) lies in a marked cell or one beside it."""
+        column, row, inside = self.spec.cell_of(x, y)
+        near = _grow(self.marked)
+        found: npt.NDArray[np.bool_] = np.zeros(x.shape, dtype=bool)
+        found[inside] = near[row[inside], column[inside]]
+        return found
+
+
+def _grow(mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """`mask` and every cell beside a set cell (the eight neighbours)."""
+    padded = np.pad(mask, 1)
+    grown = np.zeros_like(mask)
+    height, width = mask.shape
+    for dy in range(3):
+        for dx in range(3):
+            grown |= padded[dy : dy + height, dx : dx + width]
+    return grown
 
 
 class SlotTruthBuilder:
@@ -48,10 +128,12 @@ class SlotTruthBuilder:
         drops: tuple[Drop, ...] = (),
         footprint_radius: float | None = None,
         more_cameras: Sequence[tuple[CameraModel, Extrinsics]] = (),
+        seen: SeenSurfaces | None = None,
     ) -> None:
         """`more_cameras`: other cameras (each with the same LiDAR in its extrinsics) whose
         view counts as in view too (a robot with a rear camera)."""
         self.grid = grid
+        self.seen = seen
         lidar_height = extrinsics.base_to_laser.translation[2]
         in_slab = [
             o for o in obstacles if o.overlaps_slab(min_obstacle_height, max_obstacle_height)
@@ -140,7 +222,13 @@ class SlotTruthBuilder:
                 truth, self.grid.angles(), self._base_in_laser, self.footprint_radius
             )
         )
-        return SlotTruth(truth, plane, self._kinds[index], in_view, near)
+        shown = None
+        if self.seen is not None:
+            along = np.where(found, truth, 0.0).astype(np.float64)
+            bearing = heading + self.grid.angles()
+            places = (origin[0] + along * np.cos(bearing), origin[1] + along * np.sin(bearing))
+            shown = found & self.seen.shown(*places)
+        return SlotTruth(truth, plane, self._kinds[index], in_view, near, shown)
 
     def _visible(
         self, ranges: npt.NDArray[np.float32], tops: npt.NDArray[np.float64]

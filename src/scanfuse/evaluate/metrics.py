@@ -12,6 +12,11 @@ than the tolerance: something the LiDAR cannot see is in the robot's way.
 - all-around recall: share of low-obstacle slots whose true point lies within 1.0 m
   of the robot's footprint, in every direction (in the camera's view or not): what
   the obstacle memory is for;
+- all-around recall of seen slots: the same over those of them whose true point a
+  depth image had shown before (`SlotTruth.seen`). The all-around recall also counts
+  low obstacles the camera never looked at (a box beside the robot at its start, seen by
+  no frame yet): no camera memory can hold those, so they measure where the robot went
+  and looked, not what the memory kept. This one measures the memory; both are reported;
 - range error: |fused - truth| of detected low-obstacle slots.
 
 REP-117 readings compare naturally: NaN (no information) never detects and is
@@ -124,7 +129,9 @@ class SlotTruth:
     `kinds[i]` names the obstacle kind nearest in slot i ('' where nothing is in
     range); `in_view` marks the slots the camera can see (the evaluation's
     recall counts only those); `near` the slots whose true point lies within
-    `ALL_AROUND_REACH` of the robot's footprint (None: not known, counted nowhere).
+    `ALL_AROUND_REACH` of the robot's footprint (None: not known, counted nowhere);
+    `seen` the slots whose true point some depth image before this scan showed (None:
+    not known).
     """
 
     truth: F32
@@ -132,11 +139,14 @@ class SlotTruth:
     kinds: npt.NDArray[np.str_]
     in_view: Mask
     near: Mask | None = None
+    seen: Mask | None = None
 
     def __post_init__(self) -> None:
         _check_shapes(truth=self.truth, plane=self.plane, kinds=self.kinds, in_view=self.in_view)
         if self.near is not None:
             _check_shapes(truth=self.truth, near=self.near)
+        if self.seen is not None:
+            _check_shapes(truth=self.truth, seen=self.seen)
 
 
 @dataclass
@@ -164,6 +174,8 @@ class ScanTally:
     detected_total: int = 0
     low_near: int = 0
     detected_near: int = 0
+    low_near_seen: int = 0
+    detected_near_seen: int = 0
     errors: list[npt.NDArray[np.float64]] = field(default_factory=list)
     by_kind: dict[str, KindCounts] = field(default_factory=dict)
 
@@ -182,6 +194,10 @@ class ScanTally:
         if truth.near is not None:
             self.low_near += int((low & truth.near).sum())
             self.detected_near += int((hit & truth.near).sum())
+            if truth.seen is not None:
+                seen_near = low & truth.near & truth.seen
+                self.low_near_seen += int(seen_near.sum())
+                self.detected_near_seen += int((hit & seen_near).sum())
         finite_hit = hit & counted & np.isfinite(fused)
         self.errors.append(np.abs(fused[finite_hit].astype(np.float64) - truth.truth[finite_hit]))
         for kind in np.unique(truth.kinds[counted]):
@@ -201,6 +217,8 @@ class ScanTally:
             'detected_total',
             'low_near',
             'detected_near',
+            'low_near_seen',
+            'detected_near_seen',
         ):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.errors += other.errors
@@ -223,6 +241,8 @@ class ScanTally:
             low_slots_by_kind={kind: counts.low for kind, counts in sorted(self.by_kind.items())},
             low_slots_near=self.low_near,
             recall_near=_ratio(self.detected_near, self.low_near),
+            low_slots_near_seen=self.low_near_seen,
+            recall_near_seen=_ratio(self.detected_near_seen, self.low_near_seen),
         )
 
 
@@ -245,6 +265,8 @@ class ScanMetrics:
     low_slots_by_kind: dict[str, int]
     low_slots_near: int = 0  # low-obstacle slots within 1 m of the footprint, any direction
     recall_near: float = float('nan')  # all-around recall of those
+    low_slots_near_seen: int = 0  # of those, the ones a depth image had shown before
+    recall_near_seen: float = float('nan')  # all-around recall of seen slots
 
 
 def scan_metrics(fused: F32, truth: SlotTruth, tolerance: Tolerance = Tolerance()) -> ScanMetrics:

@@ -133,7 +133,9 @@ MEMORY_NOTE = (
     'marking to 2.5 m, raytrace clearing to 3.0 m, footprint clearing: '
     'examples/nav2_scanfuse.yaml), so a low obstacle the scan stops showing is cleared by '
     'the next ray over it, as Nav2 would. All-around recall: low-obstacle slots whose true '
-    "point lies within 1.0 m of the robot's footprint, in every direction. Targets for "
+    "point lies within 1.0 m of the robot's footprint, in every direction; of slots the camera "
+    'had shown: the same over those whose true point some depth image before the scan showed '
+    '(no camera memory can hold the others). Targets for '
     '`obstacle` (with memory): all-around recall >= 0.95, false obstacles <= 0.5 % of slots, '
     'no collisions in these trials.'
 )
@@ -153,6 +155,10 @@ def memory_section(result: EvaluationResult) -> list[str]:
                 f'{loop.reached}/{loop.trials}' if loop else '-',
                 _fmt(scan.recall_near),
                 str(scan.low_slots_near),
+                _fmt(scan.recall_near_seen),
+                _percent(1.0 - scan.low_slots_near_seen / scan.low_slots_near)
+                if scan.low_slots_near
+                else '-',
                 _fmt(scan.recall),
                 _percent(scan.false_obstacle_rate),
             ]
@@ -165,6 +171,8 @@ def memory_section(result: EvaluationResult) -> list[str]:
         'goals reached',
         'all-around recall (<= 1 m)',
         'low slots near',
+        'all-around recall of slots the camera had shown',
+        'near slots never shown',
         'recall in view',
         'false obstacles',
     ]

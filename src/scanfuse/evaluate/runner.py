@@ -41,7 +41,7 @@ from scanfuse.evaluate.closed_loop import (
 )
 from scanfuse.evaluate.costmap import Costmap
 from scanfuse.evaluate.drops import DropTally, false_drop_slots, reports_drops
-from scanfuse.evaluate.groundtruth import SlotTruthBuilder
+from scanfuse.evaluate.groundtruth import SeenSurfaces, SlotTruthBuilder
 from scanfuse.evaluate.mapping import (
     GridSpec,
     OccupancyGrid,
@@ -57,17 +57,19 @@ from scanfuse.evaluate.results import (
     MethodResult,
     RobotResult,
 )
+from scanfuse.motion import OdometryHistory, PlanarPose
 from scanfuse.progress import NullProgress, Progress
-from scanfuse.transforms import Extrinsics
+from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
-    from scanfuse.sim.simulation import LidarFrame, Simulation
+    from scanfuse.sim.simulation import DepthFrame, LidarFrame, Simulation, StateSample
     from scanfuse.sim.worlds import World
 
 MAP_RESOLUTION = 0.05
@@ -699,7 +701,18 @@ class _Scorer:
                     self._twins[stream.name] = f'{stream.name} {DROPS_OFF}'
                     self._names[twin] = self._twins[stream.name]
         self._scored = list(self.streams)  # without the twins
-        self.streams = list(self._names)
+        extrinsics = Extrinsics.from_config(base)
+        slab = (base.min_obstacle_height, base.max_obstacle_height)
+        seen = SeenSurfaces(
+            sim.world.obstacles,
+            sim.world.bounds,
+            slab=slab,
+            range_min=base.range_min,
+            range_max=base.range_max,
+            drops=sim.world.drops,
+        )
+        # First, so that a frame counts as shown before any scan it releases is scored.
+        self.streams = [SeenObserver(base, camera, seen, extrinsics), *self._names]
         self._pending: dict[int, dict[str, Scan]] = {}
         self.truths = SlotTruthBuilder(
             sim.world.obstacles,
@@ -708,9 +721,10 @@ class _Scorer:
             max_obstacle_height=base.max_obstacle_height,
             range_max=sim.lidar_profile.range_max,
             camera=camera,
-            extrinsics=Extrinsics.from_config(base),
+            extrinsics=extrinsics,
             drops=sim.world.drops,
             footprint_radius=sim.robot.body_radius,
+            seen=seen,
         )
         self.group_tallies = evaluation.world_tallies.setdefault(
             group, {name: ScanTally() for name in settings.methods}
@@ -783,6 +797,40 @@ class _Scorer:
                 ('passed', counts.passed_through),
             ):
                 total[key] = total.get(key, 0) + value
+
+
+class SeenObserver(MethodStream):
+    """Fed the events as a stream is, it releases nothing: it marks what each depth image
+    shows (`SeenSurfaces`), placed at the simulator's true pose at the image's stamp."""
+
+    def __init__(
+        self,
+        base: FusionConfig,
+        camera: CameraModel,
+        seen: SeenSurfaces,
+        extrinsics: Extrinsics,
+    ) -> None:
+        super().__init__('lidar', base, camera)
+        self.seen = seen
+        self.base_to_optical = extrinsics.base_to_camera_optical
+        self.true_poses = OdometryHistory()
+
+    def add_state(self, sample: StateSample) -> list[tuple[LidarFrame, Scan]]:
+        pose = sample.true_pose
+        self.true_poses.add(sample.stamp_ns, PlanarPose(pose.x, pose.y, pose.yaw))
+        return []
+
+    def add_depth(self, frame: DepthFrame, frame_id: str) -> list[tuple[LidarFrame, Scan]]:
+        del frame_id
+        pose = self.true_poses.pose_at(frame.stamp_ns).pose
+        if pose is not None:
+            base = Transform.from_rpy(0.0, 0.0, pose.yaw, (pose.x, pose.y, 0.0))
+            self.seen.add(frame.depth, frame.camera, base @ self.base_to_optical)
+        return []
+
+    def add_scan(self, frame: LidarFrame) -> list[tuple[LidarFrame, Scan]]:
+        del frame
+        return []
 
 
 def _obstacle_front(world: World) -> float | None:

@@ -1,0 +1,207 @@
+"""Obstacle memory's store on hand-worked geometry: which points it keeps, how it draws them.
+
+The sensor sits at the origin of the odometry frame facing +x unless a test says
+otherwise; cells are 2.5 cm, so cell (i, j) spans [0.025 i, 0.025 (i + 1)) in x and the
+same in y.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.camera import CameraModel
+from scanfuse.memory import (
+    OWN_WIDTH,
+    MemorySettings,
+    ObstacleMemory,
+    Placement,
+    not_nearer_than,
+    slab_points,
+    unseen_by,
+)
+from scanfuse.motion import PlanarPose
+from scanfuse.scan import AngleGrid, Scan
+from scanfuse.stream import FusionStream
+from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+from tests.support.render import camera_in_world, depth_image
+from tests.test_memory import BOX, CAMERA, HEIGHT, NS, PITCH, Robot, config, lidar
+
+SLOTS = 3600  # a tenth of a degree
+GRID = AngleGrid(-math.pi, 2 * math.pi / SLOTS, SLOTS)
+AT_ORIGIN = Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform())
+HERE = {'robot': (0.0, 0.0), 'now_ns': 0}
+
+
+def at_degrees(ranges: np.ndarray, degrees: float) -> float:
+    return float(ranges[int(GRID.slot_of(np.array([math.radians(degrees)]))[0])])
+
+
+def test_two_neighbouring_cells_are_drawn_as_the_line_between_them_at_the_nearer_range():
+    memory = ObstacleMemory()
+    # Cells (40, 0) and (40, 1): north neighbours, at bearings 0.716 and 2.148 degrees.
+    memory.add(np.array([1.0, 1.0]), np.array([0.0125, 0.0375]), 0)
+    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
+    nearer = math.hypot(1.0, 0.0125)
+    assert at_degrees(ranges, 1.4) == pytest.approx(nearer, abs=1e-6)  # between the two
+    # Beyond the ends only the points' own width: a quarter cell (0.18 degrees at 1 m).
+    own = math.degrees(OWN_WIDTH * 0.0125 / 1.0)
+    assert at_degrees(ranges, 2.148 + own - 0.1) == pytest.approx(math.hypot(1, 0.0375), abs=1e-6)
+    assert math.isnan(at_degrees(ranges, 2.148 + own + 0.15))
+    assert math.isnan(at_degrees(ranges, 0.716 - own - 0.15))
+
+
+def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
+    memory = ObstacleMemory()
+    memory.add(np.array([1.0]), np.array([0.0125]), 0)  # 0.716 degrees
+    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
+    assert at_degrees(ranges, 0.716) == pytest.approx(math.hypot(1.0, 0.0125), abs=1e-6)
+    # Widened by half a cell either side it would reach 0.716 + 0.716 = 1.43 degrees.
+    assert math.isnan(at_degrees(ranges, 1.2))
+    assert np.count_nonzero(np.isfinite(ranges)) <= 5
+
+
+def test_a_filled_area_reads_its_near_border_whatever_is_inside():
+    memory = ObstacleMemory()
+    # A 5 x 5 block of cell centres, its near column at x = 1.0125 m.
+    xs, ys = np.meshgrid(1.0125 + 0.025 * np.arange(5), 0.025 * np.arange(-2, 3))
+    memory.add(xs.ravel(), ys.ravel(), 0)
+    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
+    assert at_degrees(ranges, 0.0) == pytest.approx(1.0125, abs=1e-6)
+    # The block spans atan(0.05 / 1.0125) = 2.83 degrees either side of the axis.
+    # There the nearer end of the near column's last line: (1.0125, 0.025).
+    assert at_degrees(ranges, 2.5) == pytest.approx(math.hypot(1.0125, 0.025), abs=1e-6)
+    assert math.isnan(at_degrees(ranges, 3.5))
+
+
+def test_a_line_across_the_wrap_of_the_grid_is_drawn_across_it():
+    memory = ObstacleMemory()
+    # Behind the sensor: cells (-40, -1) and (-40, 0) straddle the bearing +-180 degrees.
+    memory.add(np.array([-0.9875, -0.9875]), np.array([-0.0125, 0.0125]), 0)
+    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
+    r = math.hypot(0.9875, 0.0125)
+    assert ranges[0] == pytest.approx(r, abs=1e-6)  # slot 0 is centred on -180 degrees
+    assert ranges[SLOTS - 1] == pytest.approx(r, abs=1e-6)
+    assert np.count_nonzero(np.isfinite(ranges)) < 30  # not the whole turn
+
+
+def test_only_cells_that_enough_pixels_fall_in_are_remembered():
+    memory = ObstacleMemory()
+    x = np.array([1.001, 1.002, 1.003, 1.051, 1.052, np.nan])
+    y = np.array([0.001, 0.002, 0.003, 0.001, 0.002, 0.0])
+    assert memory.add_dense(x, y, 0, min_count=3) == 1  # three in cell (40, 0), two in (42, 0)
+    kept_x, _ = memory.points()
+    assert kept_x.size == 1
+    assert 1.0 <= kept_x[0] < 1.025
+
+
+# A 4 x 3 pixel camera 0.2 m up, looking along +x: pixel (u, v) has the ray
+# x_n = (u - 1.5) / 100, y_n = (v - 1) / 100, so at depth 1 m its point is
+# (1, -x_n, 0.2 - y_n) in the odometry frame: heights 0.21, 0.20, 0.19 by row.
+TINY = CameraModel.from_intrinsics(4, 3, 100.0, 100.0, 1.5, 1.0)
+LOOKING_AHEAD = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, 0.2)) @ BODY_TO_OPTICAL
+
+
+def test_slab_points_are_the_pixels_inside_the_slab_and_the_range_limits():
+    depth = np.full((3, 4), 1000, dtype=np.uint16)  # 1 m
+    depth[0, 0] = 0  # no return
+    depth[1, 3] = 4000  # beyond range_max
+    x, y = slab_points(depth, TINY, LOOKING_AHEAD, slab=(0.195, 0.5), range_min=0.2, range_max=3.0)
+    # Rows 0 and 1 (heights 0.21 and 0.20) are in the slab, row 2 (0.19) is not; two
+    # pixels of them are invalid.
+    assert x.size == 6
+    np.testing.assert_allclose(x, 1.0, atol=1e-6)
+    np.testing.assert_allclose(
+        sorted(y), sorted([0.005, -0.005, -0.015, 0.015, 0.005, -0.005]), atol=1e-6
+    )
+
+
+def test_slab_points_of_a_float_image_skip_nan():
+    depth = np.full((3, 4), np.nan, dtype=np.float32)
+    depth[0, 1] = 2.0  # x_n = -0.005: at (2, 0.01, 0.2 + 0.02)
+    x, y = slab_points(depth, TINY, LOOKING_AHEAD, slab=(0.03, 0.5), range_min=0.2, range_max=3.0)
+    np.testing.assert_allclose(x, [2.0], atol=1e-6)
+    np.testing.assert_allclose(y, [0.01], atol=1e-6)
+
+
+# Four 90-degree slots centred on -180, -90, 0 and 90 degrees.
+QUARTERS = Scan(
+    -math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.array([np.inf, np.nan, 1.0, 2.0], np.float32)
+)
+POINTS = (np.array([1.5, 0.5, 0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0, -1.0, 0.0]))
+
+
+def test_what_the_lidar_sees_at_or_before_a_point_is_not_for_the_memory():
+    unseen = unseen_by(*POINTS, QUARTERS, AT_ORIGIN, (0.05, 0.02))
+    # (1.5, 0): the LiDAR reads 1.0 in front of it. (0.5, 0): 1.0 lies beyond 0.5 * 1.02 +
+    # 0.05. (0, 1): 2.0 beyond. (0, -1): NaN, no reading. (-1, 0): +Inf, nothing seen.
+    assert unseen.tolist() == [False, True, True, True, True]
+
+
+def test_pixels_nearer_than_the_obstacle_reading_of_their_slot_are_noise():
+    behind = not_nearer_than(*POINTS, QUARTERS, AT_ORIGIN)
+    # Only (1.5, 0) lies at or behind a finite reading (1.0) of its slot.
+    assert behind.tolist() == [True, False, False, False, False]
+
+
+def test_a_box_top_seen_from_above_is_remembered_as_far_as_its_far_edge():
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    x, y = stream.memory.points()
+    # The camera (0.4 m up) sees the 0.2 m box's front face and its top back to x = 1.7:
+    # the depth scan alone has only the face at 1.5.
+    assert x.size > 0
+    assert x.max() > 1.65
+    assert np.all((x >= BOX.x_min - 0.03) & (x <= BOX.x_max + 0.03))
+    assert np.all((y >= BOX.y_min - 0.03) & (y <= BOX.y_max + 0.03))
+
+
+def test_a_box_the_lidar_sees_is_not_remembered():
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan(camera=False)  # odometry and CameraInfo in; then a frame and a LiDAR scan
+    # that reads the box's front face (x = 1.5) in every slot the face spans.
+    empty = lidar(0)
+    angles = empty.angles()
+    face = (np.cos(angles) > 0) & (np.abs(np.tan(angles)) * BOX.x_min <= BOX.y_max)
+    ranges = np.where(face, BOX.x_min / np.cos(angles), np.inf).astype(np.float32)
+    robot.now += NS // 50
+    stream.add_odometry(robot.now, robot.pose)
+    view = camera_in_world(0.0, 0.0, 0.0, height=HEIGHT, pitch=PITCH)
+    stream.add_depth(robot.now - 20_000_000, depth_image(CAMERA, view, [BOX]), robot.now)
+    (out,) = stream.add_scan(lidar(robot.now).with_ranges(ranges), None, robot.now + 1_000_000)
+    assert out.depth_scan is not None
+    assert np.isfinite(out.depth_scan.ranges).any()
+    # The face and the top behind it lie at or beyond the LiDAR's reading of their slot.
+    assert len(stream.memory) == 0
+
+
+def test_settings_side_covers_the_radius():
+    assert MemorySettings(radius=2.0, cell=0.025).side == 162
+
+
+def test_a_scan_adds_its_kept_in_range_readings_at_their_place_in_odom():
+    memory = ObstacleMemory()
+    # Four slots at -180, -90, 0 and 90 degrees, seen from a LiDAR at (1, 2) facing +y.
+    scan = Scan(
+        -math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.array([0.05, 3.0, 1.0, 2.0], np.float32)
+    )
+    sensor = Placement.of(PlanarPose(1.0, 2.0, math.pi / 2), Transform())
+    # Slot 0 reads below range_min; slot 1 (3 m) is not kept.
+    memory.add_scan(scan, sensor, 7, np.array([True, False, True, True]))
+    x, y = memory.points()
+    order = np.argsort(x)
+    # 1 m straight ahead (+y): (1, 3); 2 m to the LiDAR's left (-x in odom): (-1, 2).
+    np.testing.assert_allclose(x[order], [-1.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(y[order], [2.0, 3.0], atol=1e-9)
+
+
+def test_a_scan_seen_from_a_nan_placement_adds_nothing():
+    memory = ObstacleMemory()
+    scan = Scan(-math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.ones(4, np.float32))
+    sensor = Placement(math.nan, 0.0, 1.0, 0.0, 0.0, 1.0)
+    memory.add_scan(scan, sensor, 0, np.ones(4, dtype=bool))
+    assert len(memory) == 0
