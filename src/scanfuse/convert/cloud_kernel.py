@@ -7,10 +7,10 @@ where they lie in the message, any strides) widened to float64, the height row f
 plane rows, then `bearing.fast_atan2`'s octant polynomial and the same slot rounding, so
 both give the same scan bit for bit. What differs is how the points are visited:
 
-- Points go in blocks. A first pass computes every point's height and compacts the
-  coordinates of those inside the slab into contiguous scratch, without branches (most
-  points, the floor and what is above the slab, stop there; their order in a cloud is
-  arbitrary, so a branch on the slab test mispredicts often).
+- Points go in blocks. A first pass computes every point's height and packs the indices
+  of those inside the slab, without branches (most points, the floor and what is above
+  the slab, stop there; their order in a cloud is arbitrary, so a branch on the slab test
+  would mispredict often); their coordinates are then copied to contiguous scratch.
 - A second pass over the kept points, branch-free and so vectorised by LLVM, moves them
   into the output LiDAR's frame, tests the range limits and computes the slot. This is why
   the bearing is `fast_atan2`'s polynomial written out with selects (`_slot`): the same
@@ -20,7 +20,8 @@ both give the same scan bit for bit. What differs is how the points are visited:
 - A slot's k nearest are float32: squared ranges are rounded to float32 as they go in,
   not after the k smallest are chosen, which picks the same values since rounding keeps
   order. Insertion into a slot's sorted row is branch-free (`_insert`), after one test
-  against its k-th.
+  against its k-th; for the default k = 16 (`obstacle_min_points`) with a constant trip
+  count (the kernel alone on 30 000 points in random order: 2.74 -> 2.50 ns per point).
 """
 
 from __future__ import annotations
@@ -56,24 +57,31 @@ def _in_slab(
     height_row: Any,
     low: float,
     high: float,
-    xs: Any,
-    ys: Any,
-    zs: Any,
+    index: Any,
 ) -> int:
-    """Points start ... start + size - 1 whose height is in [low, high] (not NaN), their
-    coordinates (float64) packed into xs, ys, zs; how many."""
+    """Of points start ... start + size - 1, those whose height is in [low, high] (not NaN):
+    their indices packed into `index`; how many."""
     h0, h1, h2, h3 = height_row[0], height_row[1], height_row[2], height_row[3]
     kept = 0
     for i in range(size):
-        px = np.float64(points[start + i, 0])
-        py = np.float64(points[start + i, 1])
-        pz = np.float64(points[start + i, 2])
-        height = h0 * px + h1 * py + h2 * pz + h3
-        xs[kept] = px
-        ys[kept] = py
-        zs[kept] = pz
+        height = (
+            h0 * np.float64(points[start + i, 0])
+            + h1 * np.float64(points[start + i, 1])
+            + h2 * np.float64(points[start + i, 2])
+            + h3
+        )
+        index[kept] = start + i
         kept += (height >= low) & (height <= high)
     return kept
+
+
+def _gather(points: Any, index: Any, kept: int, xs: Any, ys: Any, zs: Any) -> None:
+    """The coordinates (float64) of the kept points, contiguous for the vectorised pass."""
+    for j in range(kept):
+        p = index[j]
+        xs[j] = points[p, 0]
+        ys[j] = points[p, 1]
+        zs[j] = points[p, 2]
 
 
 def _slot(
@@ -140,6 +148,13 @@ def _insert(nearest: Any, slot: int, value: np.float32) -> None:
     nearest[slot, 0] = min(value, first)
 
 
+def _insert16(nearest: Any, slot: int, value: np.float32) -> None:
+    """`_insert` for rows of 16."""
+    for j in range(15, 0, -1):
+        nearest[slot, j] = min(max(value, nearest[slot, j - 1]), nearest[slot, j])
+    nearest[slot, 0] = min(value, nearest[slot, 0])
+
+
 def _pick(nearest: Any, spread: float, ranges: Any) -> None:
     """Per slot the range of the farthest of its k nearest within spread r^2 of the nearest
     (NaN: no point): `obstacle._cluster_range_squared` and the square root, the same float64
@@ -157,8 +172,10 @@ def _pick(nearest: Any, spread: float, ranges: Any) -> None:
 
 
 in_slab = _cached(error_model='numpy')(_in_slab)
+gather = _cached()(_gather)
 slot_of = _cached(error_model='numpy')(_slot)
 insert = _cached()(_insert)
+insert16 = _cached()(_insert16)
 pick = _cached()(_pick)
 
 
@@ -184,11 +201,13 @@ def _cloud_ranges(
     xs = np.empty(BLOCK)
     ys = np.empty(BLOCK)
     zs = np.empty(BLOCK)
+    index = np.empty(BLOCK, dtype=np.int64)
     slots = np.empty(BLOCK, dtype=np.int64)
     values = np.empty(BLOCK, dtype=np.float32)
     total = points.shape[0]
     for start in range(0, total, BLOCK):
-        kept = in_slab(points, start, min(BLOCK, total - start), height_row, low, high, xs, ys, zs)
+        kept = in_slab(points, start, min(BLOCK, total - start), height_row, low, high, index)
+        gather(points, index, kept, xs, ys, zs)
         slot_of(
             xs, ys, zs, kept, plane, angle_min, increment, count, turn,
             range_min_squared, range_max_squared, slots, values,
@@ -196,7 +215,10 @@ def _cloud_ranges(
         for j in range(kept):
             slot = slots[j]
             if 0 <= slot < count and values[j] < nearest[slot, last]:
-                insert(nearest, slot, values[j])
+                if last == 15:
+                    insert16(nearest, slot, values[j])
+                else:
+                    insert(nearest, slot, values[j])
     ranges = np.empty(count, dtype=np.float32)
     pick(nearest, spread, ranges)
     return ranges
