@@ -211,3 +211,26 @@ def test_an_empty_cloud_decodes_to_no_points_and_an_empty_scan():
     kernel, reference = both(decoded, CAMERA_MOUNT)
     assert_same(kernel, reference)
     assert np.isnan(kernel).all()
+
+
+@pytest.mark.parametrize('count', [1, 2, 3, 511, 512, 513, 1025])
+@pytest.mark.parametrize('layout', ['xyz f4', 'xyz f8', 'xyz+pad f4', 'xyz+pad f8'])
+def test_every_point_of_a_packed_run_is_read_whatever_the_count(count, layout):
+    # x, y, z the first 3 of every 3 or 4 values (one run, loaded with shuffles): the
+    # first and last points and the block edges (512) are where a run could be misread.
+    kind, width = layout.split()[1], 4 if 'pad' in layout else 3
+    rng = np.random.default_rng(count)
+    bearing, reach = rng.uniform(-math.pi, math.pi, count), rng.uniform(0.5, 2.5, count)
+    in_base = np.stack([reach * np.cos(bearing), reach * np.sin(bearing)], axis=1)
+    in_base = np.column_stack([in_base, rng.uniform(0.1, 0.4, count)])  # inside the slab
+    points = ROTATED_MOUNT.inverse().apply(in_base).astype(kind)
+    padded = np.full((count, width), np.nan, dtype=points.dtype)  # NaN padding: never a point
+    padded[:, :3] = points
+    view = padded[:, :3]
+    assert view.strides == (width * points.itemsize, points.itemsize)
+    # k = 1, every point kept: a point missed or misread changes its slot's range.
+    kernel, reference = both(view, ROTATED_MOUNT, k=1, spread=math.inf)
+    assert_same(kernel, reference)
+    assert_same(both(points, ROTATED_MOUNT, k=1, spread=math.inf)[0], reference)
+    if count <= 3:  # three bearings at random, three slots of 1080
+        assert np.isfinite(kernel).sum() == count

@@ -101,6 +101,25 @@ _KERNEL = _load_kernel()
 _NATIVE = (np.dtype(np.float32), np.dtype(np.float64))
 
 
+def _packed(points: npt.NDArray[np.floating]) -> tuple[npt.NDArray[np.floating], int]:
+    """The N x 3 `points` as one read-only run of values with x, y, z the first three of
+    every 3 or 4 (C order, or x, y, z and padding), and that stride; (empty, 0) otherwise.
+
+    The run ends at the last point's z: it spans only memory inside the points' own.
+    """
+    size = points.itemsize
+    stride, step = points.strides
+    width = stride // size if step == size and stride % size == 0 else 0
+    if width not in (3, 4) or len(points) < 2:
+        none = np.empty(0, points.dtype)
+        none.setflags(write=False)  # the run's type: one compiled kernel for both
+        return none, 0
+    run = np.lib.stride_tricks.as_strided(
+        points[:, 0], shape=(width * (len(points) - 1) + 3,), strides=(size,), writeable=False
+    )
+    return run, width
+
+
 def points_scan(
     points: npt.NDArray[np.floating],
     base_to_sensor: Transform,
@@ -139,7 +158,7 @@ def points_scan(
     squared = (range_min * range_min, range_max * range_max)
     if _KERNEL is not None and not reference:
         ranges = _KERNEL.cloud_ranges(
-            array, height_row, plane, min_height, max_height, *limits, *squared,
+            array, *_packed(array), height_row, plane, min_height, max_height, *limits, *squared,
             max(1, min_points), cluster_spread,
         )  # fmt: skip
     else:

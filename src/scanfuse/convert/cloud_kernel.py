@@ -10,7 +10,11 @@ both give the same scan bit for bit. What differs is how the points are visited:
 - Points go in blocks. A first pass computes every point's height and packs the indices
   of those inside the slab, without branches (most points, the floor and what is above
   the slab, stop there; their order in a cloud is arbitrary, so a branch on the slab test
-  would mispredict often); their coordinates are then copied to contiguous scratch.
+  would mispredict often); their coordinates are then copied to contiguous scratch. When
+  each point's x, y, z are the first three of 3 or 4 values (an N x 3 array; x, y, z and
+  padding: point_step 16 for float32, a depth camera's cloud) the pass reads them as one
+  run with a constant stride, which LLVM vectorises (`_in_slab_packed`: the slab pass
+  alone 1.24 -> 0.60 ns per point on the benchmark's 848x480 organized cloud).
 - A second pass over the kept points, branch-free and so vectorised by LLVM, moves them
   into the output LiDAR's frame, tests the range limits and computes the slot. This is why
   the bearing is `fast_atan2`'s polynomial written out with selects (`_slot`): the same
@@ -72,6 +76,56 @@ def _in_slab(
         )
         index[kept] = start + i
         kept += (height >= low) & (height <= high)
+    return kept
+
+
+def _in_slab_packed(
+    values: Any,
+    width: int,
+    start: int,
+    size: int,
+    height_row: Any,
+    low: float,
+    high: float,
+    flags: Any,
+    spare: Any,
+    index: Any,
+) -> int:
+    """`_in_slab` for points whose x, y, z are the first three of `width` (3 or 4)
+    consecutive values of `values`, the same arithmetic.
+
+    With a constant stride LLVM loads the points with shuffles instead of gathers (twice
+    as fast); for a stride of 4 only when all four values are read, hence `spare` (x, y, z,
+    padding: PCL's PointXYZ and a depth camera's cloud, point_step 16 for float32). The
+    caller keeps the last point of a stride-4 run out: its padding may be past the data.
+    """
+    h0, h1, h2, h3 = height_row[0], height_row[1], height_row[2], height_row[3]
+    # Sliced, so that every index below is provably non-negative: no wraparound select to
+    # stop the vectoriser.
+    run = values[width * start :]
+    if width == 4:
+        for i in range(size):
+            height = (
+                h0 * np.float64(run[4 * i])
+                + h1 * np.float64(run[4 * i + 1])
+                + h2 * np.float64(run[4 * i + 2])
+                + h3
+            )
+            flags[i] = (height >= low) & (height <= high)
+            spare[i] = run[4 * i + 3]
+    else:
+        for i in range(size):
+            height = (
+                h0 * np.float64(run[3 * i])
+                + h1 * np.float64(run[3 * i + 1])
+                + h2 * np.float64(run[3 * i + 2])
+                + h3
+            )
+            flags[i] = (height >= low) & (height <= high)
+    kept = 0
+    for i in range(size):
+        index[kept] = start + i
+        kept += flags[i]
     return kept
 
 
@@ -172,6 +226,7 @@ def _pick(nearest: Any, spread: float, ranges: Any) -> None:
 
 
 in_slab = _cached(error_model='numpy')(_in_slab)
+in_slab_packed = _cached(error_model='numpy')(_in_slab_packed)
 gather = _cached()(_gather)
 slot_of = _cached(error_model='numpy')(_slot)
 insert = _cached()(_insert)
@@ -181,6 +236,8 @@ pick = _cached()(_pick)
 
 def _cloud_ranges(
     points: Any,
+    packed: Any,
+    width: int,
     height_row: Any,
     plane: Any,
     low: float,
@@ -195,7 +252,11 @@ def _cloud_ranges(
     spread: float,
 ) -> Any:
     """The ranges (float32, `count`) of the points (N x 3, sensor frame) binned as
-    `cloud._nearest_loop` bins them, reported as `cloud.points_scan` reports them."""
+    `cloud._nearest_loop` bins them, reported as `cloud.points_scan` reports them.
+
+    `packed`: the same points' values as one run, x, y, z first of every `width` (3 or 4;
+    0: they are not, `packed` is not read).
+    """
     nearest = np.full((count, max(k, 1)), np.inf, dtype=np.float32)
     last = nearest.shape[1] - 1
     xs = np.empty(BLOCK)
@@ -204,9 +265,18 @@ def _cloud_ranges(
     index = np.empty(BLOCK, dtype=np.int64)
     slots = np.empty(BLOCK, dtype=np.int64)
     values = np.empty(BLOCK, dtype=np.float32)
+    flags = np.empty(BLOCK, dtype=np.uint8)
+    spare = np.empty(BLOCK)
     total = points.shape[0]
+    packed_end = total - 1 if width == 4 else total if width == 3 else 0
     for start in range(0, total, BLOCK):
-        kept = in_slab(points, start, min(BLOCK, total - start), height_row, low, high, index)
+        size = min(BLOCK, total - start)
+        if start + size <= packed_end:
+            kept = in_slab_packed(
+                packed, width, start, size, height_row, low, high, flags, spare, index
+            )
+        else:
+            kept = in_slab(points, start, size, height_row, low, high, index)
         gather(points, index, kept, xs, ys, zs)
         slot_of(
             xs, ys, zs, kept, plane, angle_min, increment, count, turn,
