@@ -147,7 +147,7 @@ def points_scan(
     moving = np.array(
         [[motion.cos, -motion.sin, 0.0, motion.tx], [motion.sin, motion.cos, 0.0, motion.ty]]
     )
-    plane = moving @ in_laser  # in_laser[3] is (0, 0, 0, 1) exactly, as both factors end
+    plane = moving @ in_laser  # in_laser[3] is exactly (0, 0, 0, 1): product of two 4x4 poses
     array = np.asarray(points)
     if array.dtype not in _NATIVE:  # other types, and either float in the other byte order
         array = array.astype(np.float64)
