@@ -269,7 +269,12 @@ def _cloud_ranges(
     spare = np.empty(BLOCK)
     total = points.shape[0]
     packed_end = total - 1 if width == 4 else total if width == 3 else 0
-    for start in range(0, total, BLOCK):
+    # Last block first: an organized cloud's last rows are the bottom of the image, nearest
+    # for a camera looking ahead and down, so the k nearest fill with near points early and
+    # later, farther ones fail the k-th test (benchmark organized cloud: 20 127 -> 13 081
+    # insertions). The k smallest do not depend on the order.
+    for block in range((total + BLOCK - 1) // BLOCK - 1, -1, -1):
+        start = block * BLOCK
         size = min(BLOCK, total - start)
         if start + size <= packed_end:
             kept = in_slab_packed(
