@@ -103,6 +103,7 @@ def _in_slab_packed(
     # Sliced, so that every index below is provably non-negative: no wraparound select to
     # stop the vectoriser.
     run = values[width * start :]
+    any_kept = 0
     if width == 4:
         for i in range(size):
             height = (
@@ -111,8 +112,10 @@ def _in_slab_packed(
                 + h2 * np.float64(run[4 * i + 2])
                 + h3
             )
-            flags[i] = (height >= low) & (height <= high)
+            inside = (height >= low) & (height <= high)
+            flags[i] = inside
             spare[i] = run[4 * i + 3]
+            any_kept += inside
     else:
         for i in range(size):
             height = (
@@ -121,7 +124,11 @@ def _in_slab_packed(
                 + h2 * np.float64(run[3 * i + 2])
                 + h3
             )
-            flags[i] = (height >= low) & (height <= high)
+            inside = (height >= low) & (height <= high)
+            flags[i] = inside
+            any_kept += inside
+    if any_kept == 0:  # most blocks of a camera's cloud (floor, above the slab): no packing
+        return 0
     kept = 0
     for i in range(size):
         index[kept] = start + i
