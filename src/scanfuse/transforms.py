@@ -209,7 +209,11 @@ class Transform:
         return self.compose(other)
 
     def inverse(self) -> Transform:
-        """b_to_a from a_to_b."""
+        """b_to_a from a_to_b (computed on first use: per-message work asks for it)."""
+        return self._inverse
+
+    @cached_property
+    def _inverse(self) -> Transform:
         x, y, z, w = self.rotation
         translation = -(self.rotation_matrix.T @ np.asarray(self.translation))
         return Transform.from_quaternion((-x, -y, -z, w), translation)

@@ -7,6 +7,11 @@ the obstacle method's noise-robust estimate is reported: of the k nearest points
 farthest within `cluster_spread` r^2 of the nearest (k = `min_points`; 1: the plain
 nearest). Points outside the range limits are left out, and slots without points are NaN:
 a cloud has no view model to say a slot is free, so it only ever adds obstacles.
+
+The points are read where they lie (a strided view of a PointCloud2's bytes, float32 or
+float64, is not copied) by the compiled kernel (`cloud_kernel`); `_nearest_loop` with the
+obstacle method's numpy pick is its reference (`points_scan(..., reference=True)`) and the
+fallback without numba: both give the same scan bit for bit.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from scanfuse.convert.obstacle import _cluster_range_squared
 from scanfuse.scan import TWO_PI, Scan
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from types import ModuleType
 
     import numpy.typing as npt
 
@@ -81,16 +86,38 @@ def _nearest_loop(
         nearest[slot, j] = r2
 
 
-def _load_kernel() -> Callable[..., None]:
+def _load_kernel() -> ModuleType | None:
+    """The numba-compiled kernel, or None when numba is not installed (the reference runs)."""
     try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _nearest_loop
-    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_nearest_loop)
-    return kernel
+        from scanfuse.convert import cloud_kernel  # noqa: PLC0415
+    except ImportError:  # pragma: no cover - numba is a dependency; this is the fallback
+        return None
+    return cloud_kernel
 
 
 _KERNEL = _load_kernel()
+# Coordinates the kernel reads as they are; anything else is widened to float64 first
+# (exact, as the kernel widens them too).
+_NATIVE = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+def _packed(points: npt.NDArray[np.floating]) -> tuple[npt.NDArray[np.floating], int]:
+    """The N x 3 `points` as one read-only run of values with x, y, z the first three of
+    every 3 or 4 (C order, or x, y, z and padding), and that stride; (empty, 0) otherwise.
+
+    The run ends at the last point's z: it spans only memory inside the points' own.
+    """
+    size = points.itemsize
+    stride, step = points.strides
+    width = stride // size if step == size and stride % size == 0 else 0
+    if width not in (3, 4) or len(points) < 2:
+        none = np.empty(0, points.dtype)
+        none.setflags(write=False)  # the run's type: one compiled kernel for both
+        return none, 0
+    run = np.lib.stride_tricks.as_strided(
+        points[:, 0], shape=(width * (len(points) - 1) + 3,), strides=(size,), writeable=False
+    )
+    return run, width
 
 
 def points_scan(
@@ -106,36 +133,39 @@ def points_scan(
     range_max: float,
     min_points: int = 1,
     cluster_spread: float = math.inf,
+    reference: bool = False,
 ) -> Scan:
     """The obstacle scan of 3D points of a sensor mounted at `base_to_sensor`, on `grid`.
 
     Heights are above the base frame's z = 0 (the floor). `motion` moves points from the
     LiDAR frame at the cloud's stamp to the LiDAR frame at the scan's stamp. Frame and stamp
-    are left for the caller.
+    are left for the caller. `reference`: the pure Python loop (`_nearest_loop`) and numpy
+    pick, not the compiled kernel (the same scan; for tests).
     """
     sensor = base_to_sensor.matrix
     in_laser = base_to_laser.inverse().matrix @ sensor
     moving = np.array(
         [[motion.cos, -motion.sin, 0.0, motion.tx], [motion.sin, motion.cos, 0.0, motion.ty]]
     )
-    plane = moving @ np.vstack([in_laser[:3], [0.0, 0.0, 0.0, 1.0]])
-    nearest = np.empty((grid.count, max(1, min_points)), dtype=np.float64)
-    _KERNEL(
-        np.ascontiguousarray(points).reshape(-1, 3),
-        np.ascontiguousarray(sensor[2]),
-        np.ascontiguousarray(plane),
-        min_height,
-        max_height,
-        grid.angle_min,
-        grid.angle_increment,
-        grid.count,
-        round(TWO_PI / abs(grid.angle_increment)),
-        range_min * range_min,
-        range_max * range_max,
-        nearest,
-    )
-    best = _cluster_range_squared(nearest.astype(np.float32), cluster_spread)
-    ranges = np.where(np.isfinite(best), np.sqrt(best), np.float32(np.nan)).astype(np.float32)
+    plane = moving @ in_laser  # in_laser[3] is exactly (0, 0, 0, 1): product of two 4x4 poses
+    array = np.asarray(points)
+    if array.dtype not in _NATIVE:  # other types, and either float in the other byte order
+        array = array.astype(np.float64)
+    array = array.reshape(-1, 3)  # a view, strides kept, for an N x 3 view of a message
+    height_row = np.ascontiguousarray(sensor[2])
+    turn = round(TWO_PI / abs(grid.angle_increment))
+    limits = (grid.angle_min, grid.angle_increment, grid.count, turn)
+    squared = (range_min * range_min, range_max * range_max)
+    if _KERNEL is not None and not reference:
+        ranges = _KERNEL.cloud_ranges(
+            array, *_packed(array), height_row, plane, min_height, max_height, *limits, *squared,
+            max(1, min_points), cluster_spread,
+        )  # fmt: skip
+    else:
+        nearest = np.empty((grid.count, max(1, min_points)), dtype=np.float64)
+        _nearest_loop(array, height_row, plane, min_height, max_height, *limits, *squared, nearest)
+        best = _cluster_range_squared(nearest.astype(np.float32), cluster_spread)
+        ranges = np.where(np.isfinite(best), np.sqrt(best), np.float32(np.nan)).astype(np.float32)
     return Scan(
         angle_min=grid.angle_min,
         angle_max=grid.angle_max,

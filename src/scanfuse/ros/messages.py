@@ -15,7 +15,6 @@ from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.lib.recfunctions import structured_to_unstructured
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
@@ -515,12 +514,23 @@ def cloud_from_msg(message: Any) -> PointCloud:
         )
         raise MessageError(msg)
     rows = data[: row_step * height].reshape(height, row_step)[:, : width * point_step]
-    layout = np.dtype(
-        {'names': ['x', 'y', 'z'], 'formats': formats, 'offsets': offsets, 'itemsize': point_step}
-    )
-    # A view of the message's bytes when rows are not padded (the usual case): no copy.
-    structured = np.ascontiguousarray(rows).reshape(-1).view(layout)
-    points = structured_to_unstructured(structured)
+    # The message's bytes when rows are not padded (the usual case): no copy.
+    flat = np.ascontiguousarray(rows).reshape(-1)
+    count = width * height
+    points: npt.NDArray[np.floating]
+    spacing = offsets[1] - offsets[0]
+    if count == 0:
+        points = np.empty((0, 3), np.result_type(*formats))
+    elif len(set(formats)) == 1 and spacing > 0 and offsets[2] - offsets[1] == spacing:
+        # x, y, z evenly spaced in each point (x, y, z, padding...: PCL's layouts): one
+        # strided N x 3 view, which the binning kernel reads as it is.
+        points = np.ndarray((count, 3), formats[0], flat, offsets[0], (point_step, spacing))
+    else:
+        columns = [
+            np.ndarray((count,), kind, flat, offset, (point_step,))
+            for kind, offset in zip(formats, offsets, strict=True)
+        ]
+        points = np.stack(columns, axis=1)
     return PointCloud(
         points, frame_name(str(message.header.frame_id)), stamp_to_ns(message.header.stamp)
     )
@@ -539,14 +549,18 @@ def cloud_to_cdr(
     extra_bytes: int = 4,
     store: Typestore | None = None,
 ) -> bytes:
-    """An unorganized PointCloud2 of `points` (x, y, z; `dtype` f4 or f8; padding after)."""
+    """A PointCloud2 of `points` (x, y, z; `dtype` f4 or f8; padding after): unorganized
+    for N x 3 points, organized (height x width) for height x width x 3."""
     store = store or typestore()
     types = store.types
+    array = np.asarray(points)
+    height, width = array.shape[:2] if array.ndim == 3 else (1, len(array))
     size = np.dtype(dtype).itemsize
     step = 3 * size + extra_bytes
-    buffer = np.zeros((len(points), step), dtype=np.uint8)
-    coordinates = np.asarray(points, dtype='<' + dtype)
-    buffer[:, : 3 * size] = coordinates.view(np.uint8).reshape(len(points), 3 * size)
+    count = height * width
+    buffer = np.zeros((count, step), dtype=np.uint8)
+    coordinates = np.ascontiguousarray(array.reshape(count, 3), dtype='<' + dtype)
+    buffer[:, : 3 * size] = coordinates.view(np.uint8).reshape(count, 3 * size)
     datatype = 7 if dtype == 'f4' else 8
     fields = [
         types['sensor_msgs/msg/PointField'](name=axis, offset=i * size, datatype=datatype, count=1)
@@ -554,12 +568,12 @@ def cloud_to_cdr(
     ]
     message = types[POINT_CLOUD](
         header=_header(store, stamp_ns, frame_id),
-        height=1,
-        width=len(points),
+        height=height,
+        width=width,
         fields=fields,
         is_bigendian=False,
         point_step=step,
-        row_step=step * len(points),
+        row_step=step * width,
         data=buffer.reshape(-1),
         is_dense=False,
     )
