@@ -311,6 +311,17 @@ def test_nan_odometry_is_rejected_and_counted():
     assert stream.odometry.rejected == 1
 
 
+def test_a_scan_with_no_readings_is_refused_and_the_stream_goes_on():
+    stream = standing()
+    empty = Scan(-math.pi, -math.pi, 1.0, 0.05, 10.0, np.array([], np.float32), stamp_ns=NS)
+    with pytest.raises(InputError, match='LiDAR scan on /scan has no readings.*skipped'):
+        stream.add_scan(empty, 1, NS)
+    stream.add_depth(NS, flat_depth(), NS)
+    (out,) = stream.add_scan(lidar_scan(NS + 1), 2, NS + 2) + stream.finish()
+    assert (out.token, out.fused is not None) == (2, True)
+    assert stream.counts.scans == 1
+
+
 def test_negative_pair_wait_is_an_error():
     with pytest.raises(InputError, match='pair_wait must be >= 0'):
         FusionStream(config(), pair_wait=-1.0)

@@ -304,8 +304,16 @@ class FusionStream(Generic[T]):
         """A LiDAR scan arrived at `now_ns`; `token` comes back with its output.
 
         Scans of the first LiDAR (`source` None or its name) make output scans; those of
-        other named LiDARs are kept for them.
+        other named LiDARs are kept for them. A scan with no readings is refused (InputError):
+        it has no grid to fuse onto, nothing to pass through.
         """
+        if scan.ranges.size == 0:
+            topic = source or self.config.scan_topic
+            msg = (
+                f'LiDAR scan on {topic} has no readings (angle_min {scan.angle_min:g}, '
+                f'angle_max {scan.angle_max:g}): nothing to fuse, skipped; check the driver'
+            )
+            raise InputError(msg)
         if self._is_extra(source):
             self.extras.add_scan(str(source), scan)
             return self._release(now_ns)
