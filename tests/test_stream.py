@@ -314,7 +314,7 @@ def test_nan_odometry_is_rejected_and_counted():
 def test_a_scan_with_no_readings_is_refused_and_the_stream_goes_on():
     stream = standing()
     empty = Scan(-math.pi, -math.pi, 1.0, 0.05, 10.0, np.array([], np.float32), stamp_ns=NS)
-    with pytest.raises(InputError, match='LiDAR scan on /scan has no readings.*skipped'):
+    with pytest.raises(InputError, match=r'LiDAR scan on /scan has no readings.*skipped'):
         stream.add_scan(empty, 1, NS)
     stream.add_depth(NS, flat_depth(), NS)
     (out,) = stream.add_scan(lidar_scan(NS + 1), 2, NS + 2) + stream.finish()
