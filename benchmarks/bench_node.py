@@ -20,11 +20,12 @@ publishers, the camera's tables and the first pairing. "Node ready" is the wall-
 of the node's own "fusing ..." log line (every endpoint created, kernels loaded, about to
 spin), against the wall clock at `Popen`: the rest up to the first fused scan is DDS
 discovery and the first pair. Fast DDS (the rmw of the wheels) matches a late-joining
-participant with one that has run for a while either at once or only at the older one's
-next periodic announcement (every 3 s by default), so the first fused scan of a start is
-either about the node's ready time + 0.1 s or up to 3 s later: the start-up trials (the
-node alone with this process's publishers, no relay) give the median and the worst of
-several starts beside the node's ready time.
+participant with one that has run for a while either at once or only at one of the older
+one's later periodic announcements (every 3 s by default; measured: with the publisher's
+period set to 0.3 s the wait is below 0.7 s, more announcements from the new participant
+change nothing), so the first fused scan of a start is either the node's ready time + about
+0.1 s or seconds later: the start-up trials (the node alone with this process's publishers,
+no relay) give the median and the worst of several starts beside the node's ready time.
 """
 
 from __future__ import annotations

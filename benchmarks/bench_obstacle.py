@@ -4,8 +4,9 @@ Per size: the scan of a uint16 frame (one core), its ratio to `np.count_nonzero`
 same image (one memory-bound pass: the floor), float32 metres input, the numpy reference,
 the row method over the full image height, one turn of a fragmented scanner (six messages,
 each on its own grid), drop-off detection on against off (the pipeline's default is on;
-issue 15's budget is 1.10); in a fresh interpreter (both cores) the 2-thread mode against one thread in the same process, and the start-up: import with the
-kernels loaded from numba's cache, then each size's per-camera tables and first frame.
+issue 15's budget is 1.10); in a fresh interpreter (both cores) the 2-thread mode against
+one thread in the same process, and the start-up: import with the kernels loaded from
+numba's cache, then each size's per-camera tables and first frame.
 
 The 2-thread figures need a second core that is free: on a machine whose cores other
 processes keep busy, numba's OpenMP workers wait for a core (and, spinning by default,
