@@ -2,10 +2,11 @@
 
 Per size: the scan of a uint16 frame (one core), its ratio to `np.count_nonzero` on the
 same image (one memory-bound pass: the floor), float32 metres input, the numpy reference,
-the row method over the full image height, drop-off detection on against off (the
-pipeline's default is on; issue 15's budget is 1.10); in a fresh interpreter (both cores) the
-2-thread mode against one thread in the same process, and the start-up: import with the
-kernels loaded from numba's cache, then each size's per-camera tables and first frame.
+the row method over the full image height, one turn of a fragmented scanner (six messages,
+each on its own grid), drop-off detection on against off (the pipeline's default is on;
+issue 15's budget is 1.10); in a fresh interpreter (both cores) the 2-thread mode against
+one thread in the same process, and the start-up: import with the kernels loaded from
+numba's cache, then each size's per-camera tables and first frame.
 
 The 2-thread figures need a second core that is free: on a machine whose cores other
 processes keep busy, numba's OpenMP workers wait for a core (and, spinning by default,
@@ -16,6 +17,7 @@ best frame shows what the split gives. Both are printed.
 from __future__ import annotations
 
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -32,6 +34,7 @@ from benchmarks.common import Row, median_seconds
 from scanfuse.config import FusionConfig
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
 from scanfuse.convert.row import row_scan
+from scanfuse.scan import AngleGrid
 
 SECTION = 'obstacle'
 HERE = Path(__file__).resolve().parent
@@ -111,6 +114,16 @@ def _drops_on_off(camera: Any, depth: np.ndarray, repeat: int = 51) -> tuple[flo
     return statistics.median(samples[1]), statistics.median(samples[0])
 
 
+def _fragmented(camera: Any, depth: np.ndarray) -> float:
+    """Median seconds of one turn of a fragmented scanner: six 60-degree messages of 180
+    readings, each fused on its own (`assemble_fragments` off); the camera sees two."""
+    grids = [
+        AngleGrid(-math.pi + k * math.pi / 3, scenes.GRID.angle_increment, 180) for k in range(6)
+    ]
+    parts = [ObstacleProjector(camera, scenes.EXTRINSICS, g, **scenes.SETTINGS) for g in grids]
+    return median_seconds(lambda: [part.scan(depth) for part in parts], repeat=21)
+
+
 def run() -> list[Row]:
     rows = []
     child = _child()
@@ -154,6 +167,15 @@ def run() -> list[Row]:
                 threaded['tables'] + threaded['first_scan'],
                 f'tables {threaded["tables"] * 1e3:.0f} ms, '
                 f'first scan {threaded["first_scan"] * 1e3:.1f} ms',
+            )
+        )
+        turn = _fragmented(camera, millimetres)
+        rows.append(
+            Row(
+                SECTION,
+                f'fragmented turn {size} (6 x 180 readings)',
+                turn,
+                f'/ one scan of the turn = {turn / obstacle:.2f} (fragments out of view: no pass)',
             )
         )
         with_drops, without = _drops_on_off(camera, millimetres)

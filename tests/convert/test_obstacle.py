@@ -21,6 +21,7 @@ from scanfuse.camera import CameraModel
 from scanfuse.convert.floor_fit import fit_floor
 from scanfuse.convert.obstacle import ObstacleProjector, SlotLookup, obstacle_scan
 from scanfuse.errors import InputError
+from scanfuse.motion import PlanarMotion
 from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics
 
@@ -189,6 +190,53 @@ def test_backwards_camera_fills_slots_around_pi(grid):
     ahead = np.abs(np.mod(angles + math.pi, 2 * math.pi) - math.pi) < math.radians(60.0)
     assert np.all(np.isnan(scan.ranges[ahead]))
     assert scan.ranges[slot_at(grid, math.pi)] == pytest.approx(2.0, abs=0.01)
+
+
+# -- fragments of a revolution the camera cannot see (issue 12) -----------------------------
+
+WALL_AHEAD: Box = (3.0, 3.2, -5.0, 5.0, 0.0, 2.0)
+# Six 60-degree fragments of one turn (a fragmented scanner's messages), and the whole turn.
+FRAGMENTS = [AngleGrid(-math.pi + k * math.pi / 3, INCREMENT, 120) for k in range(6)]
+AHEAD_MOUNTING = {
+    'camera_x': 0.1,
+    'camera_height': 0.4,
+    'camera_pitch': math.radians(20.0),
+    'lidar_height': 0.2,
+}
+
+
+@pytest.mark.parametrize('millimetres', [True, False])
+def test_fragments_out_of_view_take_no_pass_over_the_image(millimetres):
+    # CAMERA sees atan(320 / 525) = 31.4 deg either side of ahead; seen from the LiDAR 0.1 m
+    # behind it, a point ahead of the camera lies nearer the axis still. Of the six
+    # fragments only [-60, 0) and [0, 60) deg can hold a point.
+    extrinsics = Extrinsics.from_mounting(**AHEAD_MOUNTING)
+    depth = render(CAMERA, extrinsics, [BOX_5CM, WALL_AHEAD], millimetres=millimetres)
+    projectors = [projector(CAMERA, extrinsics, grid) for grid in FRAGMENTS]
+    scans = [p.scan(depth) for p in projectors]
+    assert [p.frames_converted for p in projectors] == [0, 0, 1, 1, 0, 0]
+    assert [p.sees_grid for p in projectors] == [False, False, True, True, False, False]
+    for p, scan in zip(projectors, scans, strict=True):
+        if not p.sees_grid:
+            assert np.isnan(scan.ranges).all()
+            # What the skipped pass would have found: no point in any slot.
+            assert np.isinf(p.nearest_squared(depth.ravel())).all()
+            assert not p.drop_slots.any()
+    # The box ahead at 1.5 m, in the fragment starting at 0 deg.
+    assert scans[3].ranges[0] == pytest.approx(1.5, abs=0.01)
+    whole = projector(CAMERA, extrinsics).scan(depth)
+    assert np.isnan(whole.ranges[:240]).all()
+    assert np.isnan(whole.ranges[480:]).all()
+
+
+def test_a_moved_view_of_an_unseen_fragment_still_takes_the_pass():
+    extrinsics = Extrinsics.from_mounting(**AHEAD_MOUNTING)
+    depth = render(CAMERA, extrinsics, [BOX_5CM, WALL_AHEAD])
+    behind = projector(CAMERA, extrinsics, FRAGMENTS[0])
+    turn = math.radians(1.0)
+    scan = behind.scan(depth, PlanarMotion(cos=math.cos(turn), sin=math.sin(turn)))
+    assert behind.frames_converted == 1
+    assert np.isnan(scan.ranges).all()  # turned by 1 deg, the view is still 120 deg away
 
 
 def test_clockwise_grid_is_the_counter_clockwise_one_reversed():

@@ -678,14 +678,17 @@ class ObstacleProjector:
             for table, values in zip(self._millimetres, millimetres, strict=True):
                 table[part] = values
             typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
-        self.coverage = ViewCoverage.from_tile_arcs(
-            np.concatenate([arcs[0] for arcs in tile_arcs]),
-            np.concatenate([arcs[1] for arcs in tile_arcs]),
-            shape,
-            lidar_grid,
-            tile,
-        )
+        tile_first = np.concatenate([arcs[0] for arcs in tile_arcs])
+        tile_last = np.concatenate([arcs[1] for arcs in tile_arcs])
+        self.coverage = ViewCoverage.from_tile_arcs(tile_first, tile_last, shape, lidar_grid, tile)
         self.in_view = self.coverage.in_view
+        # Whether a point can land on this grid at all: the tiles' arcs widened by one slot
+        # each way (the kernel's float32 points against these float64 arcs differ by far
+        # less). A fragment of a revolution the camera cannot see (issue 12: 6 messages per
+        # turn, each fused on its own) then costs no pass over the image: its scan is NaN.
+        widened = _arc_pieces(tile_first - 1.0, tile_last + 1.0, lidar_grid)[0]
+        self.sees_grid = bool(widened.size)
+        self.frames_converted = 0  # frames whose pixels went through the kernel or numpy
 
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
         self._drop_slots = np.zeros(lidar_grid.count, dtype=np.bool_)
@@ -831,10 +834,27 @@ class ObstacleProjector:
         if not all(map(math.isfinite, (motion.cos, motion.sin, motion.tx, motion.ty))):
             msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
             raise InputError(msg)
+        grid = self.grid
+        if not self.sees_grid and motion.is_identity:
+            # No pixel's arc reaches this grid (unmoved): every slot is out of view, so NaN,
+            # as the full pass would give. A moved view is not checked: it takes that pass.
+            self._best[:] = np.inf
+            self._drop_slots[:] = False
+            return Scan(
+                angle_min=grid.angle_min,
+                angle_max=grid.angle_max,
+                angle_increment=grid.angle_increment,
+                range_min=self.range_min,
+                range_max=self.range_max,
+                ranges=to_rep117(
+                    np.full(grid.count, np.nan, dtype=np.float32), self.range_min, self.range_max
+                ),
+            )
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
         depth = np.ascontiguousarray(depth)
         flat = depth.ravel()
+        self.frames_converted += 1
         best = self.nearest_squared(flat, motion=motion)
         seen = self._seen(depth)
         if not motion.is_identity:
@@ -842,7 +862,6 @@ class ObstacleProjector:
         empty = np.where(seen, np.float32(np.inf), np.float32(np.nan))
         ranges = np.where(np.isfinite(best), np.sqrt(best), empty)
         ranges = to_rep117(ranges, self.range_min, self.range_max)
-        grid = self.grid
         return Scan(
             angle_min=grid.angle_min,
             angle_max=grid.angle_max,
