@@ -8,6 +8,8 @@ sees; a rear LiDAR (yaw pi at the base origin) sees a back wall at x = -1.5 m.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -25,6 +27,7 @@ from scanfuse.ros.messages import (
 from scanfuse.ros.params import config_from_ros, source_list_spec, source_param_specs
 from scanfuse.scan import Scan
 from scanfuse.sources import LidarSource
+from tests.support import REPOSITORY
 from tests.support.synthetic import REAR_TOPIC, Scene, scene_messages, two_lidar_messages
 
 BOX = 1.2
@@ -225,3 +228,30 @@ def test_camera_info_with_nan_distortion_is_reported_as_unusable():
     # A usable calibration afterwards: the warning goes with it.
     live.on_camera_info(good, 1.1)
     assert live.health(1.2).state is not State.CAMERA_UNUSABLE
+
+
+def test_warm_up_loads_the_cloud_kernel_for_both_coordinate_types_only_with_a_cloud():
+    # In a fresh interpreter, so no earlier test has run the kernel: after warm_up the node
+    # with a cloud source has it ready for float32 and float64 clouds; one without has not.
+    script = (
+        'import sys\n'
+        'from scanfuse.config import FusionConfig\n'
+        'from scanfuse.ros.live import LiveFusion\n'
+        'from scanfuse.convert import cloud_kernel\n'
+        'config = FusionConfig.from_ros_params(sys.argv[1]) if sys.argv[1] else FusionConfig()\n'
+        'LiveFusion(config).warm_up()\n'
+        'print(len(cloud_kernel.cloud_ranges.signatures))\n'
+    )
+    counts = []
+    for params in (str(REPOSITORY / 'examples' / 'scanfuse_multi.yaml'), ''):
+        done = subprocess.run(
+            [sys.executable, '-c', script, params],
+            capture_output=True,
+            text=True,
+            cwd=REPOSITORY,
+            check=False,
+        )
+        assert done.returncode == 0, done.stderr
+        counts.append(int(done.stdout.split()[-1]))
+    assert counts[0] >= 2
+    assert counts[1] == 0

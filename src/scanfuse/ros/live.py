@@ -198,6 +198,33 @@ class LiveFusion:
         pipeline = FusionPipeline(self.config)
         pipeline.fuse(scan, np.full((12, 16), 1000, dtype=np.uint16), camera)
         pipeline.fuse(scan, np.full((12, 16), 1.0, dtype=np.float32), camera)
+        if self.config.sources.clouds:
+            self._warm_up_clouds(scan)
+
+    def _warm_up_clouds(self, scan: Scan) -> None:
+        """Bin a tiny PointCloud2 of each coordinate type, decoded as a live one is."""
+        from scanfuse.convert.cloud import points_scan  # noqa: PLC0415
+        from scanfuse.motion import IDENTITY_MOTION  # noqa: PLC0415
+        from scanfuse.ros.messages import cloud_from_cdr, cloud_to_cdr  # noqa: PLC0415
+        from scanfuse.transforms import Transform  # noqa: PLC0415
+
+        points = np.array([[1.0, 0.0, 0.1], [1.0, 0.1, 0.1], [1.1, 0.0, 0.1], [1.1, 0.1, 0.1]])
+        for dtype in ('f4', 'f8'):
+            raw = cloud_to_cdr(
+                points, frame_id='warm_up', stamp_ns=0, dtype=dtype, store=self.store
+            )
+            cloud = cloud_from_cdr(raw, self.store)
+            points_scan(
+                cloud.points,
+                Transform.identity(),
+                Transform.identity(),
+                scan.grid,
+                motion=IDENTITY_MOTION,
+                min_height=0.0,
+                max_height=1.0,
+                range_min=0.1,
+                range_max=10.0,
+            )
 
     # ------------------------------------------------------------ inputs
 
