@@ -43,7 +43,7 @@ def remembered() -> ObstacleMemory:
         x = centre[0] + steps * math.cos(angle)
         y = centre[1] + steps * math.sin(angle)
         inside = np.hypot(x, y) < 2.0
-        memory.add(x[inside], y[inside], 0)
+        memory.add(x[inside], y[inside], 0, robot=(0.0, 0.0))
     return memory
 
 
@@ -69,7 +69,9 @@ def run() -> list[Row]:
     def per_scan() -> None:
         # As the stream: the depth scan's readings the LiDAR does not see (here: none it
         # sees, a LiDAR reading nothing in range), then forget and project.
-        memory.add_scan(scan, placement, 0, lidar_misses(scan, free, (0.05, 0.02)))
+        memory.add_scan(
+            scan, placement, 0, lidar_misses(scan, free, (0.05, 0.02)), robot=(0.1, 0.0)
+        )
         memory.scan(placement, scan.grid, robot=(0.1, 0.0), now_ns=1)
 
     def clearing() -> None:
@@ -84,7 +86,7 @@ def run() -> list[Row]:
         keep = not_nearer_than(x, y, scan, placement) & unseen_by(
             x, y, scan, placement, (0.05, 0.02)
         )
-        cells.add_dense(x[keep], y[keep], 0, min_count=3)
+        cells.add_dense(x[keep], y[keep], 0, min_count=3, robot=(0.0, 0.0))
 
     points = len(memory)
     return [

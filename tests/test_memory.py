@@ -245,7 +245,7 @@ def test_the_store_is_bounded_by_its_grid_whatever_is_added():
     rng = np.random.default_rng(1)
     for stamp in range(50):
         x, y = rng.uniform(-50, 50, 10_000), rng.uniform(-50, 50, 10_000)
-        memory.add(x, y, stamp)
+        memory.add(x, y, stamp, robot=(0.0, 0.0))
     assert len(memory) <= MemorySettings(radius=1.0, cell=0.05).side ** 2
     memory.scan(
         Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()),
@@ -259,13 +259,13 @@ def test_the_store_is_bounded_by_its_grid_whatever_is_added():
 
 def test_nan_points_are_not_remembered():
     memory = ObstacleMemory()
-    memory.add(np.array([np.nan, 1.0]), np.array([0.0, np.inf]), 0)
+    memory.add(np.array([np.nan, 1.0]), np.array([0.0, np.inf]), 0, robot=(0.0, 0.0))
     assert len(memory) == 0
 
 
 def test_projection_of_a_remembered_point_from_an_upside_down_lidar_is_mirrored():
     memory = ObstacleMemory()
-    memory.add(np.array([0.0]), np.array([1.0]), 0)  # 1 m to the left of the base
+    memory.add(np.array([0.0]), np.array([1.0]), 0, robot=(0.0, 0.0))  # 1 m to the base's left
     grid = AngleGrid(-math.pi, 2 * math.pi / 360, 360)
     here = {'robot': (0.0, 0.0), 'now_ns': 0}
     upright = memory.scan(Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform()), grid, **here)

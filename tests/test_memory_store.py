@@ -32,7 +32,8 @@ from tests.test_memory import BOX, CAMERA, HEIGHT, NS, PITCH, Robot, config, lid
 SLOTS = 3600  # a tenth of a degree
 GRID = AngleGrid(-math.pi, 2 * math.pi / SLOTS, SLOTS)
 AT_ORIGIN = Placement.of(PlanarPose(0.0, 0.0, 0.0), Transform())
-HERE = {'robot': (0.0, 0.0), 'now_ns': 0}
+ORIGIN = (0.0, 0.0)  # the robot, odometry frame
+HERE = {'robot': ORIGIN, 'now_ns': 0}
 
 
 def at_degrees(ranges: np.ndarray, degrees: float) -> float:
@@ -42,7 +43,7 @@ def at_degrees(ranges: np.ndarray, degrees: float) -> float:
 def test_two_neighbouring_cells_are_drawn_as_the_line_between_them_at_the_nearer_range():
     memory = ObstacleMemory()
     # Cells (40, 0) and (40, 1): north neighbours, at bearings 0.716 and 2.148 degrees.
-    memory.add(np.array([1.0, 1.0]), np.array([0.0125, 0.0375]), 0)
+    memory.add(np.array([1.0, 1.0]), np.array([0.0125, 0.0375]), 0, robot=ORIGIN)
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     nearer = math.hypot(1.0, 0.0125)
     assert at_degrees(ranges, 1.4) == pytest.approx(nearer, abs=1e-6)  # between the two
@@ -55,7 +56,7 @@ def test_two_neighbouring_cells_are_drawn_as_the_line_between_them_at_the_nearer
 
 def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
     memory = ObstacleMemory()
-    memory.add(np.array([1.0]), np.array([0.0125]), 0)  # 0.716 degrees
+    memory.add(np.array([1.0]), np.array([0.0125]), 0, robot=ORIGIN)  # 0.716 degrees
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     assert at_degrees(ranges, 0.716) == pytest.approx(math.hypot(1.0, 0.0125), abs=1e-6)
     # Widened by half a cell either side it would reach 0.716 + 0.716 = 1.43 degrees.
@@ -67,7 +68,7 @@ def test_a_filled_area_reads_its_near_border_whatever_is_inside():
     memory = ObstacleMemory()
     # A 5 x 5 block of cell centres, its near column at x = 1.0125 m.
     xs, ys = np.meshgrid(1.0125 + 0.025 * np.arange(5), 0.025 * np.arange(-2, 3))
-    memory.add(xs.ravel(), ys.ravel(), 0)
+    memory.add(xs.ravel(), ys.ravel(), 0, robot=ORIGIN)
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     assert at_degrees(ranges, 0.0) == pytest.approx(1.0125, abs=1e-6)
     # The block spans atan(0.05 / 1.0125) = 2.83 degrees either side of the axis.
@@ -79,7 +80,7 @@ def test_a_filled_area_reads_its_near_border_whatever_is_inside():
 def test_a_line_across_the_wrap_of_the_grid_is_drawn_across_it():
     memory = ObstacleMemory()
     # Behind the sensor: cells (-40, -1) and (-40, 0) straddle the bearing +-180 degrees.
-    memory.add(np.array([-0.9875, -0.9875]), np.array([-0.0125, 0.0125]), 0)
+    memory.add(np.array([-0.9875, -0.9875]), np.array([-0.0125, 0.0125]), 0, robot=ORIGIN)
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     r = math.hypot(0.9875, 0.0125)
     assert ranges[0] == pytest.approx(r, abs=1e-6)  # slot 0 is centred on -180 degrees
@@ -91,7 +92,9 @@ def test_only_cells_that_enough_pixels_fall_in_are_remembered():
     memory = ObstacleMemory()
     x = np.array([1.001, 1.002, 1.003, 1.051, 1.052, np.nan])
     y = np.array([0.001, 0.002, 0.003, 0.001, 0.002, 0.0])
-    assert memory.add_dense(x, y, 0, min_count=3) == 1  # three in cell (40, 0), two in (42, 0)
+    assert (
+        memory.add_dense(x, y, 0, min_count=3, robot=ORIGIN) == 1
+    )  # three in cell (40, 0), two in (42, 0)
     kept_x, _ = memory.points()
     assert kept_x.size == 1
     assert 1.0 <= kept_x[0] < 1.025
@@ -191,7 +194,7 @@ def test_a_scan_adds_its_kept_in_range_readings_at_their_place_in_odom():
     )
     sensor = Placement.of(PlanarPose(1.0, 2.0, math.pi / 2), Transform())
     # Slot 0 reads below range_min; slot 1 (3 m) is not kept.
-    memory.add_scan(scan, sensor, 7, np.array([True, False, True, True]))
+    memory.add_scan(scan, sensor, 7, np.array([True, False, True, True]), robot=(0.5, 2.5))
     x, y = memory.points()
     order = np.argsort(x)
     # 1 m straight ahead (+y): (1, 3); 2 m to the LiDAR's left (-x in odom): (-1, 2).
@@ -203,5 +206,34 @@ def test_a_scan_seen_from_a_nan_placement_adds_nothing():
     memory = ObstacleMemory()
     scan = Scan(-math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.ones(4, np.float32))
     sensor = Placement(math.nan, 0.0, 1.0, 0.0, 0.0, 1.0)
-    memory.add_scan(scan, sensor, 0, np.ones(4, dtype=bool))
+    memory.add_scan(scan, sensor, 0, np.ones(4, dtype=bool), robot=ORIGIN)
     assert len(memory) == 0
+
+
+def test_points_beyond_the_radius_never_overwrite_one_behind_the_robot():
+    # The rolling grid has side cells: 2 * 2 m / 2.5 cm + 2 = 162, 4.05 m. A point 4.05 m
+    # in front of one 1.55 m behind the robot shares its slot; being 2.5 m off (beyond
+    # the 2 m radius) it is not remembered, by every way of adding, and the one behind stays.
+    memory = ObstacleMemory()
+    assert memory.settings.side == 162
+    memory.add(np.array([-1.5375]), np.array([0.0125]), 0, robot=ORIGIN)
+    ahead = np.array([2.5125, 2.513, 2.514])  # three pixels of one cell, 162 cells ahead
+    assert memory.add_dense(ahead, np.full(3, 0.0125), 1, min_count=3, robot=ORIGIN) == 0
+    memory.add(ahead[:1], np.array([0.0125]), 1, robot=ORIGIN)
+    scan = Scan(0.0, 0.0, 1.0, 0.1, 10.0, np.array([2.5125], np.float32))
+    memory.add_scan(scan, Placement.of(PlanarPose(0.0, 0.0125, 0.0), Transform()), 1,
+                    np.ones(1, dtype=bool), robot=ORIGIN)  # fmt: skip
+    x, y = memory.points()
+    np.testing.assert_allclose(np.stack([x, y], axis=1), [[-1.5375, 0.0125]])
+
+
+def test_pixels_far_apart_do_not_add_up_to_a_dense_cell():
+    # 1.001 m and 5.051 m share a slot (4.05 m apart): two pixels in one cell and one far
+    # off are not three in one cell.
+    memory = ObstacleMemory(MemorySettings(radius=6.0))
+    assert memory.settings.side * memory.settings.cell > 5.0  # radius 6 m: no sharing here
+    small = ObstacleMemory()
+    x = np.array([1.001, 1.002, 5.051])
+    assert small.add_dense(x, np.full(3, 0.001), 0, min_count=3, robot=ORIGIN) == 0
+    assert len(small) == 0
+    assert memory.add_dense(x, np.full(3, 0.001), 0, min_count=2, robot=ORIGIN) == 1

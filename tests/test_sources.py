@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -582,3 +583,45 @@ def test_the_shipped_several_sensors_example_loads_with_every_source():
     assert sources.cameras[1].min_obstacle_height == 0.05
     stream: FusionStream[int] = FusionStream(config)
     assert set(stream.extras.names) == {'rear', 'rear_depth', 'livox'}
+
+
+def test_what_a_second_lidar_sees_is_not_remembered_from_the_rear_camera():
+    # The rear camera sees the box 1.5 m behind. The first LiDAR reads nothing there (its
+    # blind side); a rear LiDAR (at the base, facing back) reads the box's face at 1.5 m in
+    # every slot the face spans: some LiDAR sees it now, so the memory keeps none of it.
+    # Without that reading the same frame is remembered (the test above).
+    def config(rear_sees: bool) -> tuple[FusionStream[int], Scan]:
+        values = {
+            'lidars': ['main', 'rear'],
+            'main': {'topic': '/scan', 'z': 0.3},
+            'rear': {'topic': '/rear/scan', 'z': 0.3, 'yaw': math.pi},
+        }
+        stream: FusionStream[int] = FusionStream(front_and_rear_cameras(memory=True, **values))
+        rear = base_lidar().with_ranges(np.full(720, np.inf, np.float32))
+        angles = rear.angles()
+        face = (np.cos(angles) > 0) & (np.abs(np.tan(angles)) * 1.5 <= BOX_BEHIND.y_max)
+        if rear_sees:
+            ranges = np.where(face, 1.5 / np.cos(angles), np.inf).astype(np.float32)
+            rear = rear.with_ranges(ranges)
+        return stream, replace(rear, frame_id='rear_laser')
+
+    kept = []
+    for rear_sees in (True, False):
+        stream, rear_scan = config(rear_sees)
+        rear_camera = CameraModel.from_intrinsics(
+            320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='rear_optical'
+        )
+        stream.add_camera_info(CAMERA)
+        stream.add_camera_info(rear_camera, source='rear_depth')
+        for stamp in (NS - NS // 20, NS + NS // 500):
+            stream.add_odometry(stamp, PlanarPose(0.0, 0.0, 0.0))
+        stream.add_depth(NS - 10, depth_image(CAMERA, camera_pose(0.0), []), NS, 'front_optical')
+        rear_depth = depth_image(rear_camera, camera_pose(math.pi), [BOX_BEHIND])
+        stream.add_depth(NS - 20, rear_depth, NS, 'rear_optical', source='rear_depth')
+        stream.add_scan(rear_scan, 0, NS, source='rear')
+        (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+        assert reading(out.fused, math.pi) == pytest.approx(1.5, abs=0.02)  # seen either way
+        assert stream.memory is not None
+        kept.append(len(stream.memory))
+    assert kept[0] == 0
+    assert kept[1] > 0

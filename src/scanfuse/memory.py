@@ -299,9 +299,18 @@ class ObstacleMemory:
         key = (i + (1 << 30)) * (1 << 31) + (j + (1 << 30))
         return np.mod(i, side) * side + np.mod(j, side), key
 
-    def add(self, x: F64, y: F64, stamp_ns: int) -> None:
-        """Remember points (odometry frame) seen at `stamp_ns`; one per cell, the newest."""
-        keep = np.isfinite(x) & np.isfinite(y)
+    def _within(self, x: F64, y: F64, robot: tuple[float, float]) -> npt.NDArray[np.bool_]:
+        """Finite points inside `radius` of the robot: the only ones the rolling grid holds
+        apart (two cells `side` apart share a slot, so a point 4 m off would overwrite one
+        behind the robot; it would be forgotten at the next scan anyway)."""
+        with np.errstate(invalid='ignore'):
+            near = np.hypot(x - robot[0], y - robot[1]) <= self.settings.radius
+        return near & np.isfinite(x) & np.isfinite(y)
+
+    def add(self, x: F64, y: F64, stamp_ns: int, *, robot: tuple[float, float]) -> None:
+        """Remember points (odometry frame) seen at `stamp_ns` within `radius` of `robot`
+        (odometry frame); one per cell, the newest."""
+        keep = self._within(x, y, robot)
         x, y = x[keep], y[keep]
         index, key = self._cells(x, y)
         self._x[index] = x
@@ -310,11 +319,17 @@ class ObstacleMemory:
         self._key[index] = key
 
     def add_scan(
-        self, scan: Scan, sensor: Placement, stamp_ns: int, keep: npt.NDArray[np.bool_]
+        self,
+        scan: Scan,
+        sensor: Placement,
+        stamp_ns: int,
+        keep: npt.NDArray[np.bool_],
+        *,
+        robot: tuple[float, float],
     ) -> None:
         """Remember the finite in-range readings of `scan` whose `keep` is set, seen from
-        `sensor` at `stamp_ns` (what `add(*points_of_scan(scan, sensor))` does, per reading:
-        it runs on every output scan)."""
+        `sensor` at `stamp_ns`, within `radius` of `robot` (what `add` does with their points,
+        per reading in one compiled pass: it runs on every output scan)."""
         grid = (scan.angle_min, scan.angle_increment, len(scan))
         if self._trig_grid != grid:
             angles = scan.angles()
@@ -333,6 +348,9 @@ class ObstacleMemory:
             sensor.xy,
             sensor.yx,
             sensor.yy,
+            robot[0],
+            robot[1],
+            self.settings.radius**2,
             self.settings.cell,
             self.settings.side,
             stamp_ns,
@@ -342,16 +360,19 @@ class ObstacleMemory:
             self._seen_ns,
         )
 
-    def add_dense(self, x: F64, y: F64, stamp_ns: int, *, min_count: int) -> int:
-        """Remember the points (odometry frame) of the cells that `min_count` or more of them
-        fall in, one per cell; how many cells. Many pixels of one surface fill a cell, while
-        a stray pixel of floor noise inside the slab lies alone in its cell."""
-        keep = np.isfinite(x) & np.isfinite(y)
+    def add_dense(
+        self, x: F64, y: F64, stamp_ns: int, *, min_count: int, robot: tuple[float, float]
+    ) -> int:
+        """Remember the points (odometry frame) within `radius` of `robot` of the cells that
+        `min_count` or more of them fall in, one per cell; how many cells. Many pixels of one
+        surface fill a cell, while a stray pixel of floor noise inside the slab lies alone in
+        its cell. (Within the radius no two cells share a slot, so counting by slot is exact.)"""
+        keep = self._within(x, y, robot)
         x, y = x[keep], y[keep]
         index, _ = self._cells(x, y)
         counts = np.bincount(index, minlength=self._key.size)
         dense = counts[index] >= min_count
-        self.add(x[dense], y[dense], stamp_ns)
+        self.add(x[dense], y[dense], stamp_ns, robot=robot)
         return int(np.count_nonzero(counts >= min_count))
 
     def scan(
@@ -612,6 +633,9 @@ def _add_scan_loop(
     xy: float,
     yx: float,
     yy: float,
+    robot_x: float,
+    robot_y: float,
+    radius_squared: float,
     cell: float,
     side: int,
     stamp_ns: int,
@@ -630,6 +654,8 @@ def _add_scan_loop(
         x = ox + xx * sx + yx * sy
         y = oy + xy * sx + yy * sy
         if not (math.isfinite(x) and math.isfinite(y)):  # `add` drops them too
+            continue
+        if (x - robot_x) ** 2 + (y - robot_y) ** 2 > radius_squared:  # as `add`: `_within`
             continue
         i = math.floor(x / cell)
         j = math.floor(y / cell)
@@ -723,12 +749,3 @@ def unseen_by(
         usable = np.isfinite(reading) & (reading >= lidar.range_min) & (reading <= lidar.range_max)
         sees = usable & (reading <= reach * (1.0 + margin[1]) + margin[0])
     return ~sees
-
-
-def points_of_scan(scan: Scan, sensor: Placement) -> tuple[F64, F64]:
-    """The finite in-range readings of `scan` as points in the odometry frame."""
-    ranges = scan.ranges.astype(np.float64)
-    finite = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
-    angles = scan.angles()[finite]
-    reach = ranges[finite]
-    return sensor.to_odom(reach * np.cos(angles), reach * np.sin(angles))

@@ -145,10 +145,17 @@ class StreamOutput(Generic[T]):
     timings: StageTimings | None = None
     instant: Scan | None = None  # with memory on: `fused` before the memory was merged
     memory_scan: Scan | None = None  # the remembered obstacles alone, on the LiDAR's grid
+    # Every LiDAR's readings on `lidar`'s grid (None: `lidar` alone): what no camera memory
+    # needs to hold, since some LiDAR sees it from where the robot is now.
+    lidars: Scan | None = None
 
     @property
     def with_camera(self) -> bool:
         return self.passed is None
+
+    @property
+    def every_lidar(self) -> Scan:
+        return self.lidar if self.lidars is None else self.lidars
 
 
 @dataclass
@@ -566,7 +573,10 @@ class FusionStream(Generic[T]):
         depth_scan = output.depth_scan
         for scan in obstacles:
             depth_scan = scan if depth_scan is None else merge_scans(depth_scan, scan)
-        return replace(output, fused=fused, depth_scan=depth_scan)
+        every_lidar = output.lidar
+        for scan in lidars:
+            every_lidar = merge_scans(every_lidar, scan)
+        return replace(output, fused=fused, depth_scan=depth_scan, lidars=every_lidar)
 
     def mounting(self, frame: str, fallback: Transform) -> Transform | None:
         """A sensor frame's pose in the base frame: from TF when TF knows the frame (None
@@ -611,6 +621,7 @@ class FusionStream(Generic[T]):
         config = self.config
         slab = (config.min_obstacle_height, config.max_obstacle_height)
         placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
+        robot = (base.pose.x, base.pose.y)
         if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
             seen_from = self._clear_seen(
                 memory,
@@ -623,7 +634,10 @@ class FusionStream(Generic[T]):
             if seen_from is not None:
                 self._cleared_with = frame.stamp_ns
                 if output.depth_scan is not None:
-                    self._add_slab(memory, frame, seen_from, output.depth_scan, scan, placement)
+                    self._add_slab(
+                        memory, frame, seen_from, output.depth_scan, output.every_lidar,
+                        placement, robot,
+                    )  # fmt: skip
         # The other cameras clear what they see free too (a rear camera behind a reversing
         # robot), each frame once, with its own slab.
         for seen in self.extras.seen:
@@ -635,11 +649,9 @@ class FusionStream(Generic[T]):
             ):
                 self._extra_cleared_with[seen.name] = seen.stamp_ns
         if output.depth_scan is not None:
-            unseen = lidar_misses(output.depth_scan, scan, LIDAR_SEES_MARGIN)
-            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen)
-        ranges = memory.scan(
-            placement, scan.grid, robot=(base.pose.x, base.pose.y), now_ns=scan.stamp_ns
-        )
+            unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
+            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen, robot=robot)
+        ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
         remembered = scan.with_ranges(
             ranges.astype(np.float32),
             range_min=scan.range_min,
@@ -688,6 +700,7 @@ class FusionStream(Generic[T]):
         depth_scan: Scan,
         lidar: Scan,
         placement: Placement,
+        robot: tuple[float, float],
     ) -> None:
         """Remember every slab pixel of `frame` behind its slot's obstacle reading, one per
         dense cell: a box's sides and far corners, not only the face nearest the LiDAR, so
@@ -703,7 +716,9 @@ class FusionStream(Generic[T]):
         )
         keep = not_nearer_than(x, y, depth_scan, placement)
         keep &= unseen_by(x, y, lidar, placement, LIDAR_SEES_MARGIN)
-        memory.add_dense(x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS)
+        memory.add_dense(
+            x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot
+        )
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns
