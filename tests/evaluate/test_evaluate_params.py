@@ -72,6 +72,22 @@ def test_without_parameters_the_robot_is_the_simulators_own():
 def test_a_mounting_the_simulator_cannot_build_is_refused_before_any_trial():
     with pytest.raises(SimError, match=r'camera_y=0\.1.*set camera_y to 0'):
         Evaluation(EvaluationSettings.quick(params={'camera_y': 0.1}))
+    # Only the default robot follows the file: AMR trials alone keep the AMR as built.
+    amr_only = EvaluationSettings.quick(worlds=(), turning=(), params={'camera_y': 0.1})
+    assert Evaluation(amr_only).amr_specs
+
+
+def test_a_lidar_off_the_centre_line_is_mounted_there():
+    settings = EvaluationSettings.quick(params={'lidar_y': 0.1})
+    sim = make_simulation(TURNING_TRIALS['turn-in-place'], settings)
+    try:
+        assert sim.robot.lidar_y == pytest.approx(0.1)
+        assert base_config(sim, settings).lidar_y == pytest.approx(0.1)
+        # The LiDAR's origin in the world: 0.1 m to the left of the base (the robot faces +x).
+        frame = sim.lidar_frame()
+        assert frame.origin[1] - frame.pose.y == pytest.approx(0.1, abs=2e-3)
+    finally:
+        sim.close()
 
 
 def test_evaluate_params_changes_what_the_run_used(tmp_path):

@@ -165,7 +165,7 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
     robot: dict[str, Any] = {'robot': AMR} if amr else {}
     base = settings.fusion_base()
     if base is not None:
-        mounting: dict[str, Any] = dict(robot_mounting(base))
+        mounting: dict[str, Any] = {} if amr else dict(robot_mounting(base))
         robot = {
             'robot': AMR if amr else RobotSpec(**mounting),
             'min_obstacle_height': base.min_obstacle_height,
@@ -294,17 +294,19 @@ class Evaluation:
             if name not in AMR_METHODS:
                 msg = f'unknown AMR method {name!r}; choose from {", ".join(AMR_METHODS)}'
                 raise ConfigError(msg)
-        base = settings.fusion_base()
-        if base is not None:
-            from scanfuse.sim.simulation import robot_mounting  # noqa: PLC0415
-
-            robot_mounting(base)  # a robot the simulator cannot build fails here, not in a trial
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
         if 'memory' in settings.worlds:
             self.trials += memory_specs(settings.memory, settings.memory_trials)
         self.amr_specs = amr_specs(settings.amr, settings.amr_trials)
+        base = settings.fusion_base()
+        if base is not None and (self.trials or settings.turning):
+            from scanfuse.sim.simulation import robot_mounting  # noqa: PLC0415
+
+            # The default robot follows the file's mounting: one it cannot have fails here,
+            # not in a trial (the AMR trials keep the AMR as built).
+            robot_mounting(base)
         self.amr_tallies = {name: ScanTally() for name in settings.amr_methods}
         self.amr_outcomes: list[TrialOutcome] = []
         self.tallies = {name: ScanTally() for name in settings.methods}

@@ -92,16 +92,9 @@ if TYPE_CHECKING:
 BASE_FRAME = 'base_link'
 ODOM_FRAME = 'odom'
 WORLD_FRAME = 'world'
-CAMERA_LINK = 'camera_link'
 ODOMETRY = 'nav_msgs/msg/Odometry'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 STRING = 'std_msgs/msg/String'
-TOPICS = {
-    '/scan': LASER_SCAN,
-    '/scan_truth': LASER_SCAN,
-    '/camera/depth/image_raw': IMAGE,
-    '/camera/depth/camera_info': CAMERA_INFO,
-}
 COMMON_TOPICS = {
     '/tf': TF_MESSAGE,
     '/tf_static': TF_MESSAGE,
@@ -109,7 +102,6 @@ COMMON_TOPICS = {
     '/ground_truth/pose': POSE_STAMPED,
     '/collisions': STRING,
 }
-TOPICS.update(COMMON_TOPICS)
 
 
 def robot_topics(robot: RobotSpec) -> dict[str, str]:

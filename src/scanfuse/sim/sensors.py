@@ -36,7 +36,6 @@ if TYPE_CHECKING:
     Matrix = npt.NDArray[np.float64]
 
 OPTICAL_FRAME = 'camera_depth_optical_frame'
-LASER_FRAME = 'laser'
 # Geom groups a ray may hit: every group except the robot's.
 VISIBLE_GROUPS = np.array([int(g != ROBOT_GEOM_GROUP) for g in range(6)], dtype=np.uint8)
 

@@ -181,7 +181,7 @@ def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> Fusion
         camera_pitch=robot.camera_pitch,
         camera_yaw=0.0,
         lidar_x=robot.lidar_x,
-        lidar_y=0.0,
+        lidar_y=robot.lidar_y,
         lidar_height=robot.lidar_height,
         lidar_yaw=robot.lidar_yaw,
         range_min=camera.range_min,
@@ -244,16 +244,16 @@ def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
 # RobotSpec's sensor poses, named as FusionConfig names them (fusion_config's inverse).
 MOUNTING_PARAMETERS = (
     'lidar_x',
+    'lidar_y',
     'lidar_height',
     'lidar_yaw',
     'camera_x',
     'camera_height',
     'camera_pitch',
 )
-# Mounting parameters the simulated robot cannot follow: both sensors sit on its centre
-# line, the LiDAR level, the camera looking straight ahead (pitch only).
+# Mounting parameters the default simulated robot cannot follow: its camera sits on its
+# centre line looking straight ahead (pitch only), its LiDAR level.
 UNSIMULATED_MOUNTING = (
-    'lidar_y',
     'lidar_roll',
     'lidar_pitch',
     'camera_y',
@@ -273,8 +273,8 @@ def robot_mounting(config: FusionConfig) -> dict[str, float]:
     if off:
         given = ', '.join(f'{name}={value:g}' for name, value in off.items())
         msg = (
-            f'the simulated robot carries both sensors on its centre line, the LiDAR level and '
-            f'the camera turned by pitch only; it cannot be mounted with {given}: set '
+            f'the default simulated robot carries its camera on its centre line, turned by '
+            f'pitch only, and its LiDAR level; it cannot be mounted with {given}: set '
             f'{"/".join(off)} to 0 in the parameter file for the simulation'
         )
         raise SimError(msg)
