@@ -8,10 +8,8 @@ slot, which no binning of noisy sensor points can tell apart anyway.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from collections.abc import Callable
+from scanfuse.compiled import compiled
 
 HALF_PI = 0.5 * math.pi
 
@@ -33,15 +31,4 @@ def _fast_atan2(y: float, x: float) -> float:
     return angle
 
 
-def _compile(function: Callable[[float, float], float]) -> Callable[[float, float], float]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return function
-    compiled: Callable[[float, float], float] = numba.njit(cache=True, nogil=True, inline='always')(
-        function
-    )
-    return compiled
-
-
-fast_atan2 = _compile(_fast_atan2)
+fast_atan2 = compiled(_fast_atan2, inline='always')

@@ -39,13 +39,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from scanfuse.bearing import fast_atan2
+from scanfuse.compiled import compiled
 from scanfuse.distortion import distortion_coefficients
 from scanfuse.errors import InputError
 from scanfuse.scan import TWO_PI
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     import numpy.typing as npt
 
     from scanfuse.camera import CameraModel
@@ -246,18 +245,7 @@ def _forget_and_project_loop(
         out[slot] = np.inf
 
 
-def _load_kernel() -> Callable[..., None]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _forget_and_project_loop
-    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True, fastmath=True)(
-        _forget_and_project_loop
-    )
-    return kernel
-
-
-_KERNEL = _load_kernel()
+_KERNEL = compiled(_forget_and_project_loop, fastmath=True)
 
 
 class ObstacleMemory:
@@ -532,16 +520,7 @@ def _clear_loop(
     return cleared
 
 
-def _load_clear() -> Callable[..., int]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _clear_loop
-    kernel: Callable[..., int] = numba.njit(cache=True, nogil=True)(_clear_loop)
-    return kernel
-
-
-_CLEAR = _load_clear()
+_CLEAR = compiled(_clear_loop)
 
 
 def slab_points(
@@ -666,16 +645,7 @@ def _add_scan_loop(
         keys[index] = (i + (1 << 30)) * (1 << 31) + (j + (1 << 30))
 
 
-def _load_add_scan() -> Callable[..., None]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _add_scan_loop
-    kernel: Callable[..., None] = numba.njit(cache=True, nogil=True)(_add_scan_loop)
-    return kernel
-
-
-_ADD_SCAN = _load_add_scan()
+_ADD_SCAN = compiled(_add_scan_loop)
 
 
 def lidar_misses(
@@ -692,16 +662,7 @@ def lidar_misses(
     return misses
 
 
-def _load_slab() -> Callable[..., int]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _slab_loop
-    kernel: Callable[..., int] = numba.njit(cache=True, nogil=True)(_slab_loop)
-    return kernel
-
-
-_SLAB = _load_slab()
+_SLAB = compiled(_slab_loop)
 
 
 def not_nearer_than(x: F64, y: F64, scan: Scan, sensor: Placement) -> npt.NDArray[np.bool_]:

@@ -33,25 +33,15 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numba
+import numba  # noqa: F401  (importing this module needs numba: cloud.py falls back without)
 import numpy as np
+
+from scanfuse.compiled import compiled
 
 # Points per block: scratch of three float64 coordinates, a slot and a value per point
 # stays in L1.
 BLOCK = 512
 HALF_PI = 0.5 * math.pi
-
-
-def _cached(**options: Any) -> Any:
-    """numba.njit with its on-disk cache (see `obstacle_kernel._cached`)."""
-
-    def decorate(function: Any) -> Any:
-        try:
-            return numba.njit(cache=True, nogil=True, **options)(function)
-        except RuntimeError:  # pragma: no cover - "no locator available": nowhere to write
-            return numba.njit(nogil=True, **options)(function)
-
-    return decorate
 
 
 def _in_slab(
@@ -232,13 +222,13 @@ def _pick(nearest: Any, spread: float, ranges: Any) -> None:
         ranges[s] = np.sqrt(best) if np.isfinite(best) else np.float32(np.nan)
 
 
-in_slab = _cached(error_model='numpy')(_in_slab)
-in_slab_packed = _cached(error_model='numpy')(_in_slab_packed)
-gather = _cached()(_gather)
-slot_of = _cached(error_model='numpy')(_slot)
-insert = _cached()(_insert)
-insert16 = _cached()(_insert16)
-pick = _cached()(_pick)
+in_slab = compiled(_in_slab, error_model='numpy')
+in_slab_packed = compiled(_in_slab_packed, error_model='numpy')
+gather = compiled(_gather)
+slot_of = compiled(_slot, error_model='numpy')
+insert = compiled(_insert)
+insert16 = compiled(_insert16)
+pick = compiled(_pick)
 
 
 def _cloud_ranges(
@@ -306,4 +296,4 @@ def _cloud_ranges(
     return ranges
 
 
-cloud_ranges = _cached()(_cloud_ranges)
+cloud_ranges = compiled(_cloud_ranges)

@@ -42,6 +42,8 @@ from typing import Any
 import numba
 import numpy as np
 
+from scanfuse.compiled import compiled
+
 # Pixels per block of the vectorised pass: long enough for the vector loop to pay,
 # short enough that its scratch stays in L1 and floor blocks are skipped.
 BLOCK = 256
@@ -473,30 +475,12 @@ def _seen_slots(
         seen[s] = running > 0
 
 
-def _cached(parallel: bool = False) -> Any:
-    """numba.njit with its on-disk cache, so a node start loads machine code, not compiles it.
-
-    numba keeps the cache in __pycache__ beside this file, or under the user's cache
-    directory (~/.cache/numba, or $NUMBA_CACHE_DIR) when the installed package is
-    read-only. With neither writable it cannot cache at all: compile at start then.
-    """
-
-    def decorate(function: Any) -> Any:
-        try:
-            return numba.njit(cache=True, nogil=True, parallel=parallel)(function)
-        except RuntimeError:  # pragma: no cover - "no locator available": nowhere to write
-            return numba.njit(nogil=True, parallel=parallel)(function)
-
-    return decorate
-
-
-_jit = _cached()
-seen_slots = _jit(_seen_slots)
-pick = _jit(_pick)
-accumulate = _jit(_accumulate)
-accumulate_plain = _jit(_accumulate_plain)
-reset = _jit(_reset)
-merge = _jit(_merge)
+seen_slots = compiled(_seen_slots)
+pick = compiled(_pick)
+accumulate = compiled(_accumulate)
+accumulate_plain = compiled(_accumulate_plain)
+reset = compiled(_reset)
+merge = compiled(_merge)
 
 
 def _nearest_squared(
@@ -611,5 +595,5 @@ def _nearest_squared_parallel(
     pick(nearest[0], spread, best, drops)
 
 
-nearest_squared = _jit(_nearest_squared)
-nearest_squared_parallel = _cached(parallel=True)(_nearest_squared_parallel)
+nearest_squared = compiled(_nearest_squared)
+nearest_squared_parallel = compiled(_nearest_squared_parallel, parallel=True)

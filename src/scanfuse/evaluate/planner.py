@@ -17,12 +17,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scanfuse.compiled import compiled
 from scanfuse.errors import InputError
 from scanfuse.evaluate.mapping import dilate
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     import numpy.typing as npt
 
     Mask = npt.NDArray[np.bool_]
@@ -86,16 +85,7 @@ def _astar_loop(blocked: Any, start: int, goal: int, width: int, parent: Any) ->
     return False
 
 
-def _load_kernel() -> Callable[..., bool]:
-    try:
-        import numba  # noqa: PLC0415
-    except ImportError:  # pragma: no cover - numba is a dependency; this is the fallback
-        return _astar_loop
-    kernel: Callable[..., bool] = numba.njit(cache=True)(_astar_loop)
-    return kernel
-
-
-_KERNEL = _load_kernel()
+_KERNEL = compiled(_astar_loop)
 
 
 def astar(blocked: Mask, start: Cell, goal: Cell, *, compiled: bool = True) -> list[Cell] | None:
