@@ -16,22 +16,12 @@ from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
-from tests.support.render import Box, depth_image
+from tests.support.render import Box, depth_image, square_room_ranges
 
 NS = 1_000_000_000
 HALF = 2.0  # the square room: walls at x = +-2 and y = +-2 around the base origin
 CAMERA = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='front_optical')
 PITCH = math.radians(15.0)
-
-
-def square_room_ranges(origin, yaw, angles):
-    """Distance from `origin` along world bearings yaw + angles to the square's walls."""
-    world = yaw + angles
-    dx, dy = np.cos(world), np.sin(world)
-    with np.errstate(divide='ignore'):
-        tx = np.where(dx > 0, (HALF - origin[0]) / dx, (-HALF - origin[0]) / dx)
-        ty = np.where(dy > 0, (HALF - origin[1]) / dy, (-HALF - origin[1]) / dy)
-    return np.minimum(np.abs(tx), np.abs(ty))
 
 
 def lidar_scan(origin, yaw, count, fov, frame, stamp=NS, *, grid_fov=None):
@@ -40,7 +30,7 @@ def lidar_scan(origin, yaw, count, fov, frame, stamp=NS, *, grid_fov=None):
     increment = grid_fov / count
     angle_min = -grid_fov / 2
     angles = angle_min + increment * np.arange(count)
-    ranges = square_room_ranges(origin, yaw, angles)
+    ranges = square_room_ranges(origin, yaw, angles, HALF)
     ranges[np.abs(angles) > fov / 2] = np.nan
     return Scan(
         angle_min=angle_min,
@@ -76,7 +66,7 @@ def test_two_lidars_at_opposite_corners_give_one_scan_true_from_the_output_origi
     rear = lidar_scan(rear_origin, rear_yaw, 5400, fov, 'rear')
     assert stream.add_scan(rear, 0, NS, source='rear') == []
     (out,) = stream.add_scan(front, 1, NS + 1)
-    truth = square_room_ranges(front_origin, front_yaw, front.angles())
+    truth = square_room_ranges(front_origin, front_yaw, front.angles(), HALF)
     assert out.fused is not None
     assert np.isfinite(out.fused.ranges).all()  # the rear LiDAR fills the front one's gap
     np.testing.assert_allclose(out.fused.ranges, truth, atol=0.01)
@@ -92,7 +82,7 @@ def test_full_circle_puts_a_270_degree_front_lidar_on_360_degrees_the_rear_one_f
     (out,) = stream.add_scan(front, 1, NS + 1)
     assert out.fused is not None
     assert len(out.fused) == 1440  # 360 / 0.25
-    truth = square_room_ranges((0.3, 0.2), math.pi / 4, out.fused.angles())
+    truth = square_room_ranges((0.3, 0.2), math.pi / 4, out.fused.angles(), HALF)
     assert np.isfinite(out.fused.ranges).all()
     np.testing.assert_allclose(out.fused.ranges, truth, atol=0.01)
     # Without the rear LiDAR the front one's 90-degree blind sector stays empty (NaN).

@@ -25,6 +25,7 @@ from scanfuse.sim.recording import robot_topics, static_transforms
 from scanfuse.sim.robot import AMR, AMR_CHASSIS, Mount, RobotSpec, robot_spec
 from scanfuse.sim.worlds import ROBOT_AT_ORIGIN, World, box, room_walls
 from tests.support import REPOSITORY
+from tests.support.render import square_room_ranges
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -62,16 +63,6 @@ def square_room(*, kerb: bool = False) -> World:
             box('kerb', 'low_box', (KERB_X - 0.1, 0.0), (0.1, HALF), (0.0, KERB_HEIGHT))
         )
     return World('square', 0, tuple(obstacles), ROBOT_AT_ORIGIN, bounds)
-
-
-def square_room_ranges(origin, yaw, angles):
-    """Distance from `origin` along world bearings yaw + angles to the square's walls."""
-    world = yaw + angles
-    dx, dy = np.cos(world), np.sin(world)
-    with np.errstate(divide='ignore'):
-        tx = np.where(dx > 0, (HALF - origin[0]) / dx, (-HALF - origin[0]) / dx)
-        ty = np.where(dy > 0, (HALF - origin[1]) / dy, (-HALF - origin[1]) / dy)
-    return np.minimum(np.abs(tx), np.abs(ty))
 
 
 def fused_scans(world: World, methods: tuple[str, ...], duration: float) -> dict[str, list[Scan]]:
@@ -141,7 +132,7 @@ def test_the_two_lidars_merged_give_a_360_degree_scan_of_a_square_room_within_1_
     # 360 degrees on the UST-10LX's 0.25-degree increment, from -180 degrees.
     assert len(scan) == 1440
     assert scan.angle_min == pytest.approx(-math.pi)
-    truth = square_room_ranges(FRONT, math.pi / 4, scan.angles())
+    truth = square_room_ranges(FRONT, math.pi / 4, scan.angles(), HALF)
     assert np.isfinite(scan.ranges).all()  # the rear LiDAR fills the front one's blind sector
     np.testing.assert_allclose(scan.ranges, truth, atol=0.01)
 

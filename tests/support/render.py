@@ -120,3 +120,14 @@ def turning_sweep(
     ranges = ray_to_circle((0.0, 0.0), world_angle, centre, radius)
     ranges[ranges > range_max] = np.inf
     return ranges.astype(np.float32), angle_min, increment
+
+
+def square_room_ranges(origin, yaw: float, angles: np.ndarray, half: float = 2.0) -> np.ndarray:
+    """Distance from `origin` (x, y) along world bearings yaw + angles to the walls of the
+    square room x = +-half, y = +-half: the nearer of the two walls each ray meets."""
+    world = yaw + angles
+    dx, dy = np.cos(world), np.sin(world)
+    with np.errstate(divide='ignore'):
+        tx = np.where(dx > 0, (half - origin[0]) / dx, (-half - origin[0]) / dx)
+        ty = np.where(dy > 0, (half - origin[1]) / dy, (-half - origin[1]) / dy)
+    return np.minimum(np.abs(tx), np.abs(ty))

@@ -14,7 +14,8 @@ both give the same scan bit for bit. What differs is how the points are visited:
   each point's x, y, z are the first three of 3 or 4 values (an N x 3 array; x, y, z and
   padding: point_step 16 for float32, a depth camera's cloud) the pass reads them as one
   run with a constant stride, which LLVM vectorises (`_in_slab_packed`: the slab pass
-  alone 1.24 -> 0.60 ns per point on the benchmark's 848x480 organized cloud).
+  alone 1.24 -> 0.60 ns per point on the 848x480 organized cloud of `python -m benchmarks.run
+  sources`, measured once while writing it).
 - A second pass over the kept points, branch-free and so vectorised by LLVM, moves them
   into the output LiDAR's frame, tests the range limits and computes the slot. This is why
   the bearing is `fast_atan2`'s polynomial written out with selects (`_slot`): the same
@@ -25,7 +26,8 @@ both give the same scan bit for bit. What differs is how the points are visited:
   not after the k smallest are chosen, which picks the same values since rounding keeps
   order. Insertion into a slot's sorted row is branch-free (`_insert`), after one test
   against its k-th; for the default k = 16 (`obstacle_min_points`) with a constant trip
-  count (the kernel alone on 30 000 points in random order: 2.74 -> 2.50 ns per point).
+  count (the kernel alone on that benchmark's 30 000 points in random order: 2.74 -> 2.50 ns
+  per point, measured once while writing it).
 """
 
 from __future__ import annotations
