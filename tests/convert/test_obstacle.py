@@ -229,14 +229,31 @@ def test_fragments_out_of_view_take_no_pass_over_the_image(millimetres):
     assert np.isnan(whole.ranges[480:]).all()
 
 
-def test_a_moved_view_of_an_unseen_fragment_still_takes_the_pass():
+def test_a_moved_view_skips_a_fragment_only_while_no_point_can_reach_it():
     extrinsics = Extrinsics.from_mounting(**AHEAD_MOUNTING)
     depth = render(CAMERA, extrinsics, [BOX_5CM, WALL_AHEAD])
+
+    def moved(degrees: float, tx: float = 0.0) -> PlanarMotion:
+        turn = math.radians(degrees)
+        return PlanarMotion(cos=math.cos(turn), sin=math.sin(turn), tx=tx)
+
+    # [-120, -60) deg: the view ends at -31.4 deg. Turned 10 deg and moved 3 cm (a robot at
+    # 1.5 rad/s and 0.5 m/s over 0.06 s) no point gets within 28 deg of it: no pass, NaN.
+    beside = projector(CAMERA, extrinsics, FRAGMENTS[1])
+    scan = beside.scan(depth, moved(-10.0, 0.03))
+    assert beside.frames_converted == 0
+    assert np.isnan(scan.ranges).all()
+    # What the skipped pass would have found: no point in any slot.
+    assert np.isinf(beside.nearest_squared(depth.ravel(), motion=moved(-10.0, 0.03))).all()
+    # Turned -90 deg the box ahead (1.5 m at 0 deg) lands at -90 deg, inside the fragment:
+    # the pass runs and finds it.
+    scan = beside.scan(depth, moved(-90.0))
+    assert beside.frames_converted == 1
+    assert scan.ranges[60] == pytest.approx(1.5, abs=0.02)  # slot 60: -90 deg
+    # A shift as long as the nearest point's reach could put a point at any bearing.
     behind = projector(CAMERA, extrinsics, FRAGMENTS[0])
-    turn = math.radians(1.0)
-    scan = behind.scan(depth, PlanarMotion(cos=math.cos(turn), sin=math.sin(turn)))
+    behind.scan(depth, moved(0.0, 5.0))
     assert behind.frames_converted == 1
-    assert np.isnan(scan.ranges).all()  # turned by 1 deg, the view is still 120 deg away
 
 
 def test_clockwise_grid_is_the_counter_clockwise_one_reversed():

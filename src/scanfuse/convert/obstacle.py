@@ -461,6 +461,17 @@ def _tile_arcs(
     return tile_first, tile_last
 
 
+def _segment_reach(near: tuple[F64, F64], far: tuple[F64, F64]) -> float:
+    """The least distance from the origin to any pixel's segment near -> far (inf: none)."""
+    dx, dy = far[0] - near[0], far[1] - near[1]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        along = np.clip(-(near[0] * dx + near[1] * dy) / (dx * dx + dy * dy), 0.0, 1.0)
+        along = np.where(np.isfinite(along), along, 0.0)  # a segment of one point
+        reach = np.hypot(near[0] + along * dx, near[1] + along * dy)
+    finite = reach[np.isfinite(reach)]
+    return float(finite.min()) if finite.size else math.inf
+
+
 def _arc_pieces(
     first: F64, last: F64, grid: AngleGrid
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
@@ -625,6 +636,7 @@ class ObstacleProjector:
         )
         typical = np.empty(shape[0])
         tile_arcs: list[tuple[F64, F64]] = []
+        nearest_reach = math.inf  # metres from the LiDAR's origin of the nearest possible point
         # Bands of whole tile rows, about 64k pixels each: every step below is per pixel
         # (per tile for the arcs), so banding changes no value, but the temporaries stay in
         # cache and are reused instead of faulting in fresh pages of a full-frame array each.
@@ -666,6 +678,7 @@ class ObstacleProjector:
             near = ((a_x * near_z + b_x) * sight, (a_y * near_z + b_y) * sight)
             far = ((a_x * far_z + b_x) * sight, (a_y * far_z + b_y) * sight)
             first, last = _pixel_arcs(near, far, lidar_grid)
+            nearest_reach = min(nearest_reach, _segment_reach(near, far))
             tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
             metres = (lo, hi, a_x, a_y, drop_lo, floor)
             for table, values in zip(self._metres, metres, strict=True):
@@ -688,6 +701,8 @@ class ObstacleProjector:
         # turn, each fused on its own) then costs no pass over the image: its scan is NaN.
         widened = _arc_pieces(tile_first - 1.0, tile_last + 1.0, lidar_grid)[0]
         self.sees_grid = bool(widened.size)
+        self._tile_span = (tile_first, tile_last)
+        self._nearest_reach = nearest_reach
         self.frames_converted = 0  # frames whose pixels went through the kernel or numpy
 
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
@@ -816,6 +831,23 @@ class ObstacleProjector:
             self._nearest[:] = self._part_nearest[0]
         return self._best
 
+    def reaches(self, motion: PlanarMotion = IDENTITY_MOTION) -> bool:
+        """Whether a point of a frame, moved by `motion`, can land on this grid at all.
+
+        The motion turns every bearing by its angle and then shifts a point at r metres by at
+        most asin(|t| / r) (t: its translation), r at least the nearest reach of any pixel's
+        slab segment: the tiles' arcs widened by that, plus one slot, cover every point.
+        """
+        if motion.is_identity:
+            return self.sees_grid
+        shift = math.hypot(motion.tx, motion.ty)
+        if not shift < self._nearest_reach:
+            return True  # a point may pass the origin: any bearing
+        turn = abs(motion.angle) + math.asin(shift / self._nearest_reach)
+        margin = 1.0 + turn / abs(self.grid.angle_increment)
+        first, last = self._tile_span
+        return bool(_arc_pieces(first - margin, last + margin, self.grid)[0].size)
+
     def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
 
@@ -835,9 +867,9 @@ class ObstacleProjector:
             msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
             raise InputError(msg)
         grid = self.grid
-        if not self.sees_grid and motion.is_identity:
-            # No pixel's arc reaches this grid (unmoved): every slot is out of view, so NaN,
-            # as the full pass would give. A moved view is not checked: it takes that pass.
+        if not self.reaches(motion):
+            # No pixel's arc reaches this grid, moved by `motion`: every slot is out of view,
+            # so NaN, as the full pass would give.
             self._best[:] = np.inf
             self._drop_slots[:] = False
             return Scan(
