@@ -62,6 +62,8 @@ from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     import numpy as np
     import numpy.typing as npt
 
@@ -268,32 +270,28 @@ def _run_job(settings: EvaluationSettings, job: Job) -> EvaluationPart:
     return evaluation.part()
 
 
+def _check_names(kind: str, names: Iterable[str], known: Iterable[str]) -> None:
+    from scanfuse.errors import ConfigError  # noqa: PLC0415
+
+    choices = list(known)
+    for name in names:
+        if name not in choices:
+            msg = f'unknown {kind} {name!r}; choose from {", ".join(choices)}'
+            raise ConfigError(msg)
+
+
 class Evaluation:
     """One evaluation run; `run()` does the work, `result()` packs it up."""
 
     def __init__(self, settings: EvaluationSettings, progress: Progress | None = None) -> None:
-        from scanfuse.errors import ConfigError  # noqa: PLC0415
-
-        for name in (*settings.methods, *settings.closed_loop_methods):
-            if name not in METHODS:
-                msg = f'unknown method {name!r}; choose from {", ".join(METHODS)}'
-                raise ConfigError(msg)
-        for name in settings.memory:
-            if name not in MEMORY_FAMILIES:
-                msg = f'unknown memory trial {name!r}; choose from {", ".join(MEMORY_FAMILIES)}'
-                raise ConfigError(msg)
-        for name in settings.turning:
-            if name not in TURNING_TRIALS:
-                msg = f'unknown turning trial {name!r}; choose from {", ".join(TURNING_TRIALS)}'
-                raise ConfigError(msg)
-        for name in settings.amr:
-            if name not in AMR_FAMILIES:
-                msg = f'unknown AMR trial {name!r}; choose from {", ".join(AMR_FAMILIES)}'
-                raise ConfigError(msg)
-        for name in settings.amr_methods:
-            if name not in AMR_METHODS:
-                msg = f'unknown AMR method {name!r}; choose from {", ".join(AMR_METHODS)}'
-                raise ConfigError(msg)
+        for kind, names, known in (
+            ('method', (*settings.methods, *settings.closed_loop_methods), METHODS),
+            ('memory trial', settings.memory, MEMORY_FAMILIES),
+            ('turning trial', settings.turning, TURNING_TRIALS),
+            ('AMR trial', settings.amr, AMR_FAMILIES),
+            ('AMR method', settings.amr_methods, AMR_METHODS),
+        ):
+            _check_names(kind, names, known)
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
