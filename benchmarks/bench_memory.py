@@ -20,9 +20,8 @@ from scanfuse.memory import (
     ObstacleMemory,
     Placement,
     lidar_misses,
-    not_nearer_than,
     slab_points,
-    unseen_by,
+    worth_remembering,
 )
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
@@ -83,9 +82,7 @@ def run() -> list[Row]:
     def slab_cells() -> None:
         # What the stream adds per fused depth frame: a wall 2.5 m ahead fills the slab rows.
         x, y = slab_points(depth, camera, view, slab=(0.03, 0.5), range_min=0.2, range_max=3.0)
-        keep = not_nearer_than(x, y, scan, placement) & unseen_by(
-            x, y, scan, placement, (0.05, 0.02)
-        )
+        keep = worth_remembering(x, y, scan, scan, placement, (0.05, 0.02))
         cells.add_dense(x[keep], y[keep], 0, min_count=3, robot=(0.0, 0.0))
 
     points = len(memory)

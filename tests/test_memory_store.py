@@ -21,6 +21,7 @@ from scanfuse.memory import (
     not_nearer_than,
     slab_points,
     unseen_by,
+    worth_remembering,
 )
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import AngleGrid, Scan
@@ -147,6 +148,27 @@ def test_pixels_nearer_than_the_obstacle_reading_of_their_slot_are_noise():
     behind = not_nearer_than(*POINTS, QUARTERS, AT_ORIGIN)
     # Only (1.5, 0) lies at or behind a finite reading (1.0) of its slot.
     assert behind.tolist() == [True, False, False, False, False]
+
+
+def test_worth_remembering_is_behind_the_depth_reading_and_unseen_by_the_lidar():
+    # Depth scan: 0.8 m behind (slot 0), 1.2 m ahead (slot 2); LiDAR: QUARTERS (+Inf behind,
+    # 1.0 ahead). (1.5, 0) lies behind 1.2 but the LiDAR sees 1.0 before it; (-1, 0) lies
+    # behind 0.8 where the LiDAR sees nothing: kept; (-0.5, 0) is nearer than 0.8; (0, 1) has
+    # no depth reading in its slot.
+    depth = QUARTERS.with_ranges(np.array([0.8, np.nan, 1.2, np.nan], np.float32))
+    x, y = np.array([1.5, -1.0, -0.5, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])
+    both = worth_remembering(x, y, depth, QUARTERS, AT_ORIGIN, (0.05, 0.02))
+    assert both.tolist() == [False, True, False, False]
+    apart = not_nearer_than(x, y, depth, AT_ORIGIN) & unseen_by(
+        x, y, QUARTERS, AT_ORIGIN, (0.05, 0.02)
+    )
+    assert both.tolist() == apart.tolist()
+    # On another grid (the LiDAR's 8 slots) the same points, the same answer.
+    eighths = Scan(-math.pi, 3 * math.pi / 4, math.pi / 4, 0.1, 10.0,
+                   np.array([np.inf] * 4 + [1.0] * 2 + [2.0] * 2, np.float32))  # fmt: skip
+    assert worth_remembering(x, y, depth, eighths, AT_ORIGIN, (0.05, 0.02)).tolist() == [
+        False, True, False, False,
+    ]  # fmt: skip
 
 
 def test_a_box_top_seen_from_above_is_remembered_as_far_as_its_far_edge():

@@ -665,6 +665,40 @@ def lidar_misses(
 _SLAB = compiled(_slab_loop)
 
 
+def _reach_and_slot(
+    x: F64, y: F64, grid: AngleGrid, sensor: Placement
+) -> tuple[F64, npt.NDArray[np.int64]]:
+    """Per point (odometry frame): its range from `sensor` and its slot of `grid`."""
+    dx, dy = x - sensor.x, y - sensor.y
+    sx = sensor.xx * dx + sensor.xy * dy
+    sy = sensor.yx * dx + sensor.yy * dy
+    slot: npt.NDArray[np.int64] = grid.slot_of(np.arctan2(sy, sx))
+    return np.hypot(sx, sy), slot
+
+
+def _usable_reading(scan: Scan, slot: npt.NDArray[np.int64]) -> F64:
+    """`scan`'s finite in-range reading in each slot; NaN for none or outside the grid."""
+    ranges = scan.ranges.astype(np.float64)
+    reading = np.where(
+        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
+    )
+    with np.errstate(invalid='ignore'):
+        usable = (reading >= scan.range_min) & (reading <= scan.range_max)
+    return np.where(usable, reading, np.nan)
+
+
+def _not_nearer(reach: F64, reading: F64) -> npt.NDArray[np.bool_]:
+    with np.errstate(invalid='ignore'):
+        keep: npt.NDArray[np.bool_] = reach >= reading  # False against NaN: no reading
+    return keep
+
+
+def _unseen(reach: F64, reading: F64, margin: tuple[float, float]) -> npt.NDArray[np.bool_]:
+    with np.errstate(invalid='ignore'):
+        sees = reading <= reach * (1.0 + margin[1]) + margin[0]  # False against NaN
+    return ~sees
+
+
 def not_nearer_than(x: F64, y: F64, scan: Scan, sensor: Placement) -> npt.NDArray[np.bool_]:
     """Which points (odometry frame) lie in a slot of `scan` with a finite in-range reading,
     seen from `sensor`, no nearer than that reading.
@@ -673,18 +707,8 @@ def not_nearer_than(x: F64, y: F64, scan: Scan, sensor: Placement) -> npt.NDArra
     points): a pixel nearer than it is the short tail of depth noise, or too few to be an
     obstacle at all where the slot reads free.
     """
-    dx, dy = x - sensor.x, y - sensor.y
-    sx = sensor.xx * dx + sensor.xy * dy
-    sy = sensor.yx * dx + sensor.yy * dy
-    slot = scan.grid.slot_of(np.arctan2(sy, sx))
-    ranges = scan.ranges.astype(np.float64)
-    reading = np.where(
-        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
-    )
-    with np.errstate(invalid='ignore'):
-        usable = np.isfinite(reading) & (reading >= scan.range_min) & (reading <= scan.range_max)
-        keep: npt.NDArray[np.bool_] = usable & (np.hypot(sx, sy) >= reading)
-    return keep
+    reach, slot = _reach_and_slot(x, y, scan.grid, sensor)
+    return _not_nearer(reach, _usable_reading(scan, slot))
 
 
 def unseen_by(
@@ -697,16 +721,18 @@ def unseen_by(
     What the LiDAR sees at its own height it sees again from anywhere: the memory need not
     keep it, and a wall kept on drifting odometry stands in front of the wall.
     """
-    dx, dy = x - sensor.x, y - sensor.y
-    sx = sensor.xx * dx + sensor.xy * dy
-    sy = sensor.yx * dx + sensor.yy * dy
-    slot = lidar.grid.slot_of(np.arctan2(sy, sx))
-    ranges = lidar.ranges.astype(np.float64)
-    reading = np.where(
-        (slot >= 0) & (slot < ranges.size), ranges[np.clip(slot, 0, ranges.size - 1)], np.nan
-    )
-    reach = np.hypot(sx, sy)
-    with np.errstate(invalid='ignore'):
-        usable = np.isfinite(reading) & (reading >= lidar.range_min) & (reading <= lidar.range_max)
-        sees = usable & (reading <= reach * (1.0 + margin[1]) + margin[0])
-    return ~sees
+    reach, slot = _reach_and_slot(x, y, lidar.grid, sensor)
+    return _unseen(reach, _usable_reading(lidar, slot), margin)
+
+
+def worth_remembering(
+    x: F64, y: F64, depth_scan: Scan, lidar: Scan, sensor: Placement, margin: tuple[float, float]
+) -> npt.NDArray[np.bool_]:
+    """`not_nearer_than(depth_scan) & unseen_by(lidar)`, each point's bearing found once
+    when the two scans share a grid (they do in the stream: both on the output grid)."""
+    if depth_scan.grid != lidar.grid:
+        near = not_nearer_than(x, y, depth_scan, sensor)
+        return near & unseen_by(x, y, lidar, sensor, margin)
+    reach, slot = _reach_and_slot(x, y, lidar.grid, sensor)
+    near = _not_nearer(reach, _usable_reading(depth_scan, slot))
+    return near & _unseen(reach, _usable_reading(lidar, slot), margin)

@@ -53,9 +53,8 @@ from scanfuse.memory import (
     ObstacleMemory,
     Placement,
     lidar_misses,
-    not_nearer_than,
     slab_points,
-    unseen_by,
+    worth_remembering,
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
@@ -714,8 +713,7 @@ class FusionStream(Generic[T]):
             range_min=config.range_min,
             range_max=config.range_max,
         )
-        keep = not_nearer_than(x, y, depth_scan, placement)
-        keep &= unseen_by(x, y, lidar, placement, LIDAR_SEES_MARGIN)
+        keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)
         memory.add_dense(
             x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot
         )
