@@ -15,7 +15,14 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from scanfuse.errors import ConfigError
-from scanfuse.sources import MAX_MOUNTING_OFFSET, SourceSet, sources_to_params, split_sources
+from scanfuse.sources import (
+    MAX_MOUNTING_OFFSET,
+    SourceSet,
+    assemble_fragments_field,
+    fragment_timeout_field,
+    sources_to_params,
+    split_sources,
+)
 
 NODE_NAME = 'scanfuse'
 # Parameters of the live node alone (ros.params.NodeSettings), which the one parameter file
@@ -196,16 +203,8 @@ class FusionConfig(BaseModel):
     )
     lidar_pitch: float = _radians(0.0, 'LiDAR pitch in the base frame, radians')
     lidar_yaw: float = _radians(0.0, 'LiDAR yaw in the base frame, radians')
-    assemble_fragments: bool = Field(
-        default=False,
-        description=(
-            'LiDAR publishes each revolution as several scans (PSENscan): assemble them and '
-            'fuse once per revolution'
-        ),
-    )
-    fragment_timeout: float = Field(
-        0.2, gt=0.0, le=10.0, description='seconds a fragmented revolution may take'
-    )
+    assemble_fragments: bool = assemble_fragments_field()
+    fragment_timeout: float = fragment_timeout_field()
     full_circle: bool = Field(
         default=False,
         description=(

@@ -38,6 +38,22 @@ MAX_MOUNTING_OFFSET = 100.0
 _REACH = MAX_MOUNTING_OFFSET
 
 
+# The fragment options of a LiDAR, the same for the one-source parameters (FusionConfig)
+# and a named source: one description, one set of bounds.
+def assemble_fragments_field() -> Any:
+    return Field(
+        default=False,
+        description=(
+            'assemble scans that each cover part of one revolution (a PSENscan publishes 6 per '
+            'turn) into one, fused once per revolution'
+        ),
+    )
+
+
+def fragment_timeout_field() -> Any:
+    return Field(0.2, gt=0.0, le=10.0, description='seconds a revolution may take to complete')
+
+
 class Mounting(BaseModel):
     """Pose of a sensor (its body frame; for a camera, the camera_link) in the base frame."""
 
@@ -63,16 +79,8 @@ class LidarSource(Mounting):
     max_time_offset: float = Field(
         0.1, gt=0.0, le=10.0, description='freshest scan used within this many seconds'
     )
-    assemble_fragments: bool = Field(
-        default=False,
-        description=(
-            'assemble scans that each cover part of one revolution (a PSENscan publishes 6 per '
-            'turn) into one, fused once per revolution'
-        ),
-    )
-    fragment_timeout: float = Field(
-        0.2, gt=0.0, le=10.0, description='seconds a revolution may take to complete'
-    )
+    assemble_fragments: bool = assemble_fragments_field()
+    fragment_timeout: float = fragment_timeout_field()
 
 
 class CameraSource(Mounting):
