@@ -62,7 +62,7 @@ from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Iterable, Sequence
 
     import numpy as np
     import numpy.typing as npt
@@ -433,13 +433,9 @@ class Evaluation:
             base = base_config(sim, self.settings)
             transforms = robot_transforms(sim)
             driver = MethodStream(method, base, sim.camera, transforms)
-            scoring = method == 'obstacle' or (
-                'obstacle' not in self.settings.closed_loop_methods
-                and method == self.settings.closed_loop_methods[0]
-            )
             scorer = (
                 _Scorer(self, trial.label, trial.world, sim, base, transforms, mapped=True)
-                if scoring
+                if _scores(method, self.settings.closed_loop_methods)
                 else None
             )
             keep = method == 'lidar' and trial.world in {'bookshelf', 'barricade'}
@@ -474,8 +470,7 @@ class Evaluation:
             transforms = robot_transforms(sim)
             driver = MethodStream(method, base, sim.camera, transforms)
             methods = self.settings.amr_methods
-            scoring = method == 'obstacle' or ('obstacle' not in methods and method == methods[0])
-            scorer = _AmrScorer(self, sim, base) if scoring else None
+            scorer = _AmrScorer(self, sim, base) if _scores(method, methods) else None
             # The driver's own scans are scored too: one stream per method.
             observers = (
                 [
@@ -586,6 +581,12 @@ AMR_DESCRIPTIONS = {
     'lidar': 'both LiDARs merged into one 360-degree scan, no camera',
     'obstacle': 'both LiDARs, front and rear cameras (obstacle method, memory on)',
 }
+
+
+def _scores(method: str, methods: Sequence[str]) -> bool:
+    """Whether `method`'s run of a trial scores every method on it (their streams see the
+    same drive): `obstacle`'s, or the first method's when `obstacle` is not evaluated."""
+    return method == 'obstacle' or ('obstacle' not in methods and method == methods[0])
 
 
 def amr_specs(families: tuple[str, ...], variants: int) -> list[TrialSpec]:
