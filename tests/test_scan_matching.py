@@ -260,3 +260,21 @@ def test_a_refused_match_keeps_the_correction_and_starts_a_new_reference():
     assert result.refused is Refusal.TOO_FEW_PAIRS
     assert drift.refused == {Refusal.TOO_FEW_PAIRS: 1}
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)
+
+
+def test_an_upside_down_lidar_s_matches_are_turned_back_into_the_base_s_turn():
+    # Mounted rolled by pi: the LiDAR's angle a looks along the base's bearing -a, so the
+    # scan of a base heading `yaw` holds the room's range at world bearing yaw - a.
+    mount = Transform.from_rpy(math.pi, 0.0, 0.0, (0.0, 0.0, 0.3))
+    drift = DriftCorrection()
+    steps = 10
+    for k in range(steps + 1):
+        true = PlanarPose(0.0, 0.0, 0.5 * math.pi * k / steps)
+        in_room = base_in_room(true)
+        ranges = square_room_ranges((in_room.x, in_room.y), in_room.yaw, -ANGLES, half=HALF)
+        odometry = PlanarPose(0.0, 0.0, true.yaw * OVER_COUNT)
+        drift.update(lidar_scan(ranges), odometry, mount)
+    corrected = drift.corrected(odometry)
+    assert odometry.yaw - true.yaw == pytest.approx(0.015 * math.pi)
+    assert corrected.yaw == pytest.approx(true.yaw, abs=1e-3)
+    assert math.hypot(corrected.x, corrected.y) < 0.003

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from scanfuse.bearing import fast_atan2
 from scanfuse.compiled import compiled
 from scanfuse.errors import InputError
 from scanfuse.motion import PlanarPose, wrap_angle
@@ -142,19 +143,40 @@ class Reference:
     y: F64
     nx: F64  # the line's unit normal
     ny: F64
+    lined: npt.NDArray[np.bool_]  # readings with a line
     angle_min: float
     increment: float
     count: int
     lines: int  # readings with a line
 
 
+def _points_loop(
+    ranges: Any, angle_min: float, increment: float, low: float, high: float, x: Any, y: Any
+) -> int:
+    """Readings within [low, high] as points (x, y), NaN else; returns how many."""
+    valid = 0
+    for i in range(ranges.shape[0]):
+        r = float(ranges[i])
+        if np.isfinite(r) and low <= r <= high:
+            angle = angle_min + i * increment
+            x[i] = r * math.cos(angle)
+            y[i] = r * math.sin(angle)
+            valid += 1
+        else:
+            x[i] = np.nan
+            y[i] = np.nan
+    return valid
+
+
+_POINTS = compiled(_points_loop)
+
+
 def points(scan: Scan) -> tuple[F64, F64]:
     """The scan's readings (within range_min..range_max) as sensor-frame points, NaN else."""
-    ranges = np.asarray(scan.ranges, dtype=np.float64)
-    valid = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
-    ranges = np.where(valid, ranges, np.nan)
-    angles = scan.angles()
-    return ranges * np.cos(angles), ranges * np.sin(angles)
+    x = np.empty(len(scan))
+    y = np.empty(len(scan))
+    _POINTS(scan.ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max, x, y)
+    return x, y
 
 
 def _normals_loop(
@@ -177,28 +199,10 @@ def _normals_loop(
         r = math.sqrt(x[j] * x[j] + y[j] * y[j])
         half = int(0.5 * span / max(r * abs(increment), 1e-6) + 0.5)
         half = max(2, min(most, half))
+        # One pass of moments about the reading itself (small numbers: no cancellation).
         n = 0
         sx = 0.0
         sy = 0.0
-        for k in range(-half, half + 1):
-            i = j + k
-            if full:
-                i = i % count
-            elif i < 0 or i >= count:
-                continue
-            if not np.isfinite(x[i]):
-                continue
-            dx = x[i] - x[j]
-            dy = y[i] - y[j]
-            if dx * dx + dy * dy > span * span:
-                continue  # across a gap: another surface
-            n += 1
-            sx += x[i]
-            sy += y[i]
-        if n < 4:
-            continue
-        mx = sx / n
-        my = sy / n
         sxx = 0.0
         sxy = 0.0
         syy = 0.0
@@ -213,12 +217,20 @@ def _normals_loop(
             dx = x[i] - x[j]
             dy = y[i] - y[j]
             if dx * dx + dy * dy > span * span:
-                continue
-            ex = x[i] - mx
-            ey = y[i] - my
-            sxx += ex * ex
-            sxy += ex * ey
-            syy += ey * ey
+                continue  # across a gap: another surface
+            n += 1
+            sx += dx
+            sy += dy
+            sxx += dx * dx
+            sxy += dx * dy
+            syy += dy * dy
+        if n < 4:
+            continue
+        mx = sx / n
+        my = sy / n
+        sxx = sxx / n - mx * mx
+        sxy = sxy / n - mx * my
+        syy = syy / n - my * my
         # Eigenvalues of [[sxx, sxy], [sxy, syy]]; the line runs along the larger one.
         mean = 0.5 * (sxx + syy)
         spread = math.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
@@ -229,8 +241,8 @@ def _normals_loop(
         along = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
         nx[j] = -math.sin(along)
         ny[j] = math.cos(along)
-        cx[j] = mx
-        cy[j] = my
+        cx[j] = x[j] + mx
+        cy[j] = y[j] + my
         lines += 1
     return lines
 
@@ -247,19 +259,21 @@ def reference(scan: Scan) -> Reference:
     lines = int(
         _NORMALS(x, y, increment, full, NORMAL_SPAN, MAX_NEIGHBOURS, MAX_FLATNESS, nx, ny, cx, cy)
     )
-    return Reference(cx, cy, nx, ny, float(scan.angle_min), increment, len(scan), lines)
+    return Reference(
+        cx, cy, nx, ny, np.isfinite(nx), float(scan.angle_min), increment, len(scan), lines
+    )
 
 
 def _accumulate_loop(
-    qx: Any, qy: Any, nx: Any, ny: Any, angle_min: float, increment: float, count: int,
-    px: Any, py: Any, yaw: float, tx: float, ty: float, gate: float, huber: float,
+    qx: Any, qy: Any, nx: Any, ny: Any, lined: Any, angle_min: float, increment: float,
+    count: int, px: Any, py: Any, yaw: float, tx: float, ty: float, gate: float, huber: float,
     lever: float, out: Any,
 ) -> None:  # fmt: skip
     """Normal equations of point-to-line ICP at (yaw, tx, ty) (Censi 2008, eq. 6 linearised):
     out[0:6] H (upper triangle, yaw scaled by `lever`), out[6:9] J^T W e, out[9] pairs,
-    out[10] sum of squared inlier residuals. A point pairs with the reference reading whose
-    slot holds its bearing (projective association), when that reading has a line and the
-    point lies within `gate` of it."""
+    out[10] sum of squared inlier residuals. A point (all finite) pairs with the reference
+    reading whose slot holds its bearing (projective association), when that reading has a
+    line (`lined`) and the point lies within `gate` of it."""
     for k in range(11):
         out[k] = 0.0
     c = math.cos(yaw)
@@ -269,20 +283,18 @@ def _accumulate_loop(
     for i in range(px.shape[0]):
         x = px[i]
         y = py[i]
-        if not np.isfinite(x):
-            continue
         rx = c * x - s * y
         ry = s * x + c * y
         ux = rx + tx
         uy = ry + ty
-        offset = (sign * (math.atan2(uy, ux) - angle_min) + 0.5 * step) % (2.0 * math.pi)
+        # fast_atan2 is within 2e-4 rad: at worst the neighbouring reading's line, which
+        # is the same wall.
+        offset = (sign * (fast_atan2(uy, ux) - angle_min) + 0.5 * step) % (2.0 * math.pi)
         j = int(offset / step)
-        if j >= count:
+        if j >= count or not lined[j]:
             continue
         ax = nx[j]
         ay = ny[j]
-        if not np.isfinite(ax):
-            continue
         e = ax * (ux - qx[j]) + ay * (uy - qy[j])
         if abs(e) > gate:
             continue
@@ -302,7 +314,7 @@ def _accumulate_loop(
         out[10] += e * e
 
 
-_ACCUMULATE = compiled(_accumulate_loop)
+_ACCUMULATE = compiled(_accumulate_loop, fastmath=True)
 
 
 def match(
@@ -321,7 +333,9 @@ def match(
         raise InputError(msg)
     settings = settings or MatchSettings()
     px, py = points(current)
-    readings = int(np.isfinite(px).sum())
+    valid = np.isfinite(px)
+    px, py = px[valid], py[valid]
+    readings = px.size
     refused = _too_few(0, readings, settings)
     if refused is not None or ref.lines < settings.min_pairs:
         return Match(prediction, Refusal.TOO_FEW_PAIRS, 0, math.nan, 0)
@@ -331,7 +345,7 @@ def match(
     basis: F64 | None = None
     for _ in range(settings.iterations):
         _ACCUMULATE(
-            ref.x, ref.y, ref.nx, ref.ny, ref.angle_min, ref.increment, ref.count,
+            ref.x, ref.y, ref.nx, ref.ny, ref.lined, ref.angle_min, ref.increment, ref.count,
             px, py, yaw, tx, ty, gate, settings.huber, LEVER, out,
         )  # fmt: skip
         if _too_few(int(out[9]), readings, settings) is not None:
@@ -353,7 +367,7 @@ def match(
             break
     # The residual at the final estimate, within the final gate.
     _ACCUMULATE(
-        ref.x, ref.y, ref.nx, ref.ny, ref.angle_min, ref.increment, ref.count,
+        ref.x, ref.y, ref.nx, ref.ny, ref.lined, ref.angle_min, ref.increment, ref.count,
         px, py, yaw, tx, ty, gate, settings.huber, LEVER, out,
     )  # fmt: skip
     assert basis is not None  # at least one iteration ran
@@ -483,7 +497,9 @@ class DriftCorrection:
         move = key.odometry.between(base)
         predicted = to_sensor @ move.matrix() @ sensor
         prediction = RelativePose(
-            math.atan2(predicted[1, 0], predicted[0, 0]), predicted[0, 3], predicted[1, 3]
+            math.atan2(predicted[1, 0], predicted[0, 0]),
+            float(predicted[0, 3]),
+            float(predicted[1, 3]),
         )
         result = match(key.ref, scan, prediction, self.settings)
         self.last = result
@@ -498,7 +514,9 @@ class DriftCorrection:
         # The sensor's matched move seen from the base (S T S^-1; exact for a sensor whose z
         # axis is vertical, up or down, as `PlanarMotion.of_base_move`).
         moved = sensor @ relative @ to_sensor
-        true_move = PlanarPose(moved[0, 3], moved[1, 3], math.atan2(moved[1, 0], moved[0, 0]))
+        true_move = PlanarPose(
+            float(moved[0, 3]), float(moved[1, 3]), math.atan2(moved[1, 0], moved[0, 0])
+        )
         corrected = key.corrected.compose(true_move)
         self.correction = corrected.compose(base.inverse())
         if (
