@@ -164,16 +164,32 @@ def test_a_round_room_around_the_lidar_does_not_fix_the_turn():
 
 def test_a_correction_beyond_odometry_s_plausible_error_is_refused():
     # Odometry says the LiDAR stood still; the scans show a turn of 0.05 rad: more than
-    # 20 % of no turn plus the 0.01 rad floor.
+    # 20 % of no turn plus a floor of 0.02 rad.
     turned = PlanarPose(START.x, START.y, START.yaw + 0.05)
     prediction = RelativePose(0.0, 0.0, 0.0)
-    result = match(reference(room(START)), room(turned), prediction)
+    strict = MatchSettings(turn_floor=0.02)
+    result = match(reference(room(START)), room(turned), prediction, strict)
     assert result.refused is Refusal.IMPLAUSIBLE
     assert result.pose == prediction
-    settings = MatchSettings(turn_floor=0.06)  # allowed: the turn is found
-    found = match(reference(room(START)), room(turned), prediction, settings)
+    found = match(reference(room(START)), room(turned), prediction)  # the default 0.1 rad
     assert found.accepted
     assert found.pose.yaw == pytest.approx(0.05, abs=2e-4)
+
+
+def test_a_shift_beyond_odometry_s_plausible_error_is_refused():
+    # The LiDAR moved 8 cm along its own x axis while odometry saw no move: more than a
+    # floor of 5 cm.
+    c, s = math.cos(START.yaw), math.sin(START.yaw)
+    shifted = PlanarPose(START.x + 0.08 * c, START.y + 0.08 * s, START.yaw)
+    prediction = RelativePose(0.0, 0.0, 0.0)
+    result = match(
+        reference(room(START)), room(shifted), prediction, MatchSettings(shift_floor=0.05)
+    )
+    assert result.refused is Refusal.IMPLAUSIBLE
+    found = match(reference(room(START)), room(shifted), prediction)  # the default 0.1 m
+    assert found.accepted
+    assert found.pose.tx == pytest.approx(0.08, abs=0.001)
+    assert found.pose.ty == pytest.approx(0.0, abs=0.001)
 
 
 def test_scans_that_disagree_more_than_max_rms_are_refused():

@@ -79,9 +79,9 @@ class MatchSettings:
     min_information: float = 10.0  # effective pairs a direction needs to be corrected, and
     min_ratio: float = 0.02  # share of the best direction's information
     turn_share: float = 0.2  # a yaw correction is plausible up to this share of the turn
-    turn_floor: float = 0.01  # radians, plus this
+    turn_floor: float = 0.1  # radians, plus this: wheels slip that much when a turn reverses
     shift_share: float = 0.2  # a translation correction: this share of the move
-    shift_floor: float = 0.03  # metres, plus this
+    shift_floor: float = 0.1  # metres, plus this
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
