@@ -374,3 +374,14 @@ def test_switching_scan_matching_at_run_time_drops_the_memory():
     stream.reconfigure(config(memory_scan_matching=False))
     assert len(stream.memory) == 0
     assert stream.counts.memory_dropped == 1
+
+
+def test_an_odometry_jump_resets_the_drift_correction_with_the_memory():
+    stream, _ = turned_half_way()
+    assert abs(stream.drift.correction.yaw) == pytest.approx(0.03 * math.pi, abs=0.005)
+    now = stream.odometry.newest_ns + NS // 50
+    stream.add_odometry(now, PlanarPose(10.0, 0.0, 0.0))  # a reset: 10 m in 20 ms
+    stream.add_odometry(now + NS // 50, PlanarPose(10.0, 0.0, 0.0))
+    stream.add_scan(lidar(now + NS // 50), None, now + NS // 50)
+    assert len(stream.memory) == 0
+    assert stream.drift.correction == PlanarPose(0.0, 0.0, 0.0)
