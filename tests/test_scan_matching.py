@@ -294,3 +294,16 @@ def test_an_upside_down_lidar_s_matches_are_turned_back_into_the_base_s_turn():
     assert odometry.yaw - true.yaw == pytest.approx(0.015 * math.pi)
     assert corrected.yaw == pytest.approx(true.yaw, abs=1e-3)
     assert math.hypot(corrected.x, corrected.y) < 0.003
+
+
+def test_scans_with_no_overlap_are_refused_as_too_few_pairs():
+    # The reference sees only the half of the room ahead, the current scan only the half
+    # behind: every reading is valid, none falls on a reference line.
+    ahead = room(START).ranges.copy()
+    behind = ahead.copy()
+    ahead[np.abs(ANGLES) > math.pi / 2] = np.nan
+    behind[np.abs(ANGLES) < math.pi / 2 + 0.1] = np.nan
+    prediction = RelativePose(0.0, 0.0, 0.0)
+    result = match(reference(lidar_scan(ahead)), lidar_scan(behind), prediction)
+    assert result.refused is Refusal.TOO_FEW_PAIRS
+    assert result.pose == prediction

@@ -336,8 +336,7 @@ def match(
     valid = np.isfinite(px)
     px, py = px[valid], py[valid]
     readings = px.size
-    refused = _too_few(0, readings, settings)
-    if refused is not None or ref.lines < settings.min_pairs:
+    if readings < settings.min_pairs or ref.lines < settings.min_pairs:
         return Match(prediction, Refusal.TOO_FEW_PAIRS, 0, math.nan, 0)
     out = np.zeros(11)
     yaw, tx, ty = prediction.yaw, prediction.tx, prediction.ty
@@ -348,7 +347,7 @@ def match(
             ref.x, ref.y, ref.nx, ref.ny, ref.lined, ref.angle_min, ref.increment, ref.count,
             px, py, yaw, tx, ty, gate, settings.huber, LEVER, out,
         )  # fmt: skip
-        if _too_few(int(out[9]), readings, settings) is not None:
+        if _too_few(int(out[9]), readings, settings):
             return Match(prediction, Refusal.TOO_FEW_PAIRS, int(out[9]), math.nan, 0)
         information = _information(out)
         if basis is None:
@@ -386,7 +385,7 @@ def _verdict(
 ) -> Match:
     """The estimate, or the prediction when the final pairs do not support it."""
     pairs = int(out[9])
-    if _too_few(pairs, readings, settings) is not None:
+    if _too_few(pairs, readings, settings):
         return Match(prediction, Refusal.TOO_FEW_PAIRS, pairs, math.nan, 0)
     rms = math.sqrt(out[10] / pairs)
     if rms > settings.max_rms:
@@ -396,12 +395,8 @@ def _verdict(
     return Match(estimate, None, pairs, rms, fixed)
 
 
-def _too_few(pairs: int, readings: int, settings: MatchSettings) -> Refusal | None:
-    if readings < settings.min_pairs:
-        return Refusal.TOO_FEW_PAIRS
-    if pairs and (pairs < settings.min_pairs or pairs < settings.min_share * readings):
-        return Refusal.TOO_FEW_PAIRS
-    return None
+def _too_few(pairs: int, readings: int, settings: MatchSettings) -> bool:
+    return pairs < settings.min_pairs or pairs < settings.min_share * readings
 
 
 def _information(out: F64) -> F64:
