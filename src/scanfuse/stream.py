@@ -625,8 +625,7 @@ class FusionStream(Generic[T]):
             self._memory_frozen(scan.stamp_ns)
             return output
         if self._memory_segment is not None and base.segment != self._memory_segment:
-            self._drop_memory('odometry jumped (reset or relocalisation)')
-            self.drift.reset()
+            self._drop_memory('odometry jumped (reset or relocalisation)')  # and the drift
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         config = self.config
@@ -762,7 +761,7 @@ class FusionStream(Generic[T]):
             self._memory_placed_ns = None
 
     def _drop_memory(self, why: str) -> None:
-        self.drift.reset()
+        self.drift.reset()  # the odometry frame the correction was for is gone too
         if self.memory is not None and len(self.memory):
             self.memory.clear()
             self.counts.memory_dropped += 1
