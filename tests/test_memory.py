@@ -21,7 +21,7 @@ from scanfuse.motion import PlanarPose
 from scanfuse.scan import AngleGrid, Scan
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import Transform
-from tests.support.render import Box, camera_in_world, depth_image
+from tests.support.render import Box, camera_in_world, depth_image, square_room_ranges
 
 NS = 1_000_000_000
 CAMERA = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='optical')
@@ -285,3 +285,103 @@ def test_bad_memory_settings_are_errors():
         MemorySettings(radius=math.nan)
     with pytest.raises(InputError, match='use a larger memory_cell'):
         MemorySettings(radius=100.0, cell=0.01)
+
+
+# ------------------------------------------------------------ drifting wheel odometry
+
+ROOM_OFFSET = (0.4, -0.3)  # the robot in the room of walls x, y = +-3 m (off its centre)
+OVER_COUNT = 1.03  # wheel slip: odometry reports 3 % more turn than the robot made
+
+
+class DriftingRobot(Robot):
+    """Turns in place while its wheel odometry over-counts the turn; its LiDAR (10 Hz, the
+    robot's true heading) sees the room's walls, 0.3 m up, over the box."""
+
+    def __init__(self, stream: FusionStream, world: list[Box]):
+        super().__init__(stream, world)
+        self.true_yaw = 0.0
+
+    def room_scan(self) -> Scan:
+        empty = lidar(self.now)
+        ranges = square_room_ranges(ROOM_OFFSET, self.true_yaw, empty.angles(), half=3.0)
+        return empty.with_ranges(ranges.astype(np.float32))
+
+    def turn_to(self, yaw: float, seconds: float) -> None:
+        start, steps = self.true_yaw, round(seconds * 50)
+        for k in range(1, steps + 1):
+            self.now += NS // 50
+            self.true_yaw = start + (yaw - start) * k / steps
+            self.pose = PlanarPose(0.0, 0.0, self.true_yaw * OVER_COUNT)
+            self.stream.add_odometry(self.now, self.pose)
+            if k % 5 == 0:  # the camera looks away from the box: only the LiDAR matters
+                self.stream.add_scan(self.room_scan(), None, self.now + 1_000_000)
+
+    def scan(self, *, camera: bool = True):
+        self.now += NS // 50
+        self.stream.add_odometry(self.now, self.pose)
+        if camera:
+            view = camera_in_world(0.0, 0.0, self.true_yaw, height=HEIGHT, pitch=PITCH)
+            depth = depth_image(CAMERA, view, self.world)
+            self.stream.add_depth(self.now - 20_000_000, depth, self.now - 5_000_000)
+        (out,) = self.stream.add_scan(self.room_scan(), None, self.now + 1_000_000)
+        return out
+
+
+def remembered_bearing(scan: Scan) -> float:
+    """Circular mean bearing of the remembered slots (the box's, symmetric about its centre)."""
+    angles = scan.angles()[np.isfinite(scan.ranges)]
+    return math.atan2(np.sin(angles).mean(), np.cos(angles).mean())
+
+
+def turned_half_way(**changes) -> tuple[FusionStream, object]:
+    stream = FusionStream(config(**changes))
+    robot = DriftingRobot(stream, [BOX])
+    seen = robot.scan()
+    assert reading_at(seen.fused, 0.0)[0] == pytest.approx(box_front_range(), abs=0.02)
+    robot.turn_to(math.pi, 2.0)  # 1.57 rad/s in place; odometry says 1.03 pi
+    for _ in range(3):
+        behind = robot.scan()
+    return stream, behind
+
+
+def test_scan_matching_keeps_the_box_at_its_true_bearing_when_odometry_over_counts_a_half_turn():
+    stream, behind = turned_half_way()
+    value, slot = reading_at(behind.fused, math.pi)
+    assert value == pytest.approx(box_front_range(), abs=0.02)
+    expected_slot = int(behind.fused.grid.slot_of(np.array([math.pi]))[0])
+    assert min(abs(slot - expected_slot), READINGS - abs(slot - expected_slot)) <= 1
+    increment = 2 * math.pi / READINGS
+    offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
+    assert abs(offset) <= increment
+    assert stream.counts.drift_matched >= 20  # every scan of the turn matched
+    assert stream.counts.drift_refused == 0
+
+
+def test_without_scan_matching_the_box_is_off_by_the_odometry_s_over_count():
+    _, behind = turned_half_way(memory_scan_matching=False)
+    # Remembered at odom bearing 0; odometry's heading is 1.03 pi, so the box is drawn at
+    # -1.03 pi = pi - 0.094 rad: 10.8 slots of half a degree short of where it is.
+    expected = -0.03 * math.pi
+    offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
+    assert offset == pytest.approx(expected, abs=2 * 2 * math.pi / READINGS)
+
+
+def test_switching_scan_matching_at_run_time_drops_the_memory():
+    stream = FusionStream(config())
+    robot = DriftingRobot(stream, [BOX])
+    robot.scan()
+    assert len(stream.memory) > 0
+    stream.reconfigure(config(memory_scan_matching=False))
+    assert len(stream.memory) == 0
+    assert stream.counts.memory_dropped == 1
+
+
+def test_an_odometry_jump_resets_the_drift_correction_with_the_memory():
+    stream, _ = turned_half_way()
+    assert abs(stream.drift.correction.yaw) == pytest.approx(0.03 * math.pi, abs=0.005)
+    now = stream.odometry.newest_ns + NS // 50
+    stream.add_odometry(now, PlanarPose(10.0, 0.0, 0.0))  # a reset: 10 m in 20 ms
+    stream.add_odometry(now + NS // 50, PlanarPose(10.0, 0.0, 0.0))
+    stream.add_scan(lidar(now + NS // 50), None, now + NS // 50)
+    assert len(stream.memory) == 0
+    assert stream.drift.correction == PlanarPose(0.0, 0.0, 0.0)

@@ -270,6 +270,13 @@ class FusionConfig(BaseModel):
             'is frozen: neither merged nor updated)'
         ),
     )
+    memory_scan_matching: bool = Field(
+        default=True,
+        description=(
+            'keep the memory aligned with the walls the LiDAR sees where wheel odometry drifts '
+            '(each scan matched against an earlier one; refused matches fall back to odometry)'
+        ),
+    )
     camera_timeout: float = Field(
         0.5,
         gt=0.0,

@@ -10,6 +10,9 @@ far edge, not only the face nearest the LiDAR) in cells that several pixels fill
 (`add_dense`: stray floor noise inside the slab lies alone in its cell); of both, only
 what the LiDAR does not see at its own height (`unseen_by`): the LiDAR sees that again
 from anywhere, and a wall remembered on drifting odometry would stand in front of it.
+The stream places every point with the odometry pose corrected by scan matching
+(`scanfuse.scan_matching.DriftCorrection`, `memory_scan_matching`): "the odometry frame"
+below is that corrected frame, which stays on the walls where wheel odometry drifts.
 
 Store: a rolling grid of `cell` metre cells around the robot, one point per cell (the
 newest seen there, exact coordinates kept), so its size is bounded by construction:

@@ -59,6 +59,7 @@ from scanfuse.memory import (
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.scan import full_circle
+from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
@@ -169,6 +170,8 @@ class StreamCounts:
     remembered: int = 0  # output scans the memory added to
     memory_cleared: int = 0  # remembered points the camera saw free
     memory_dropped: int = 0  # times the memory was dropped (odometry lost or jumped)
+    drift_matched: int = 0  # LiDAR scans whose match corrected the memory's odometry
+    drift_refused: int = 0  # matches refused (the memory followed odometry alone)
     passed: dict[Passed, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
@@ -224,6 +227,9 @@ class FusionStream(Generic[T]):
         self.odometry = OdometryHistory()
         self.memory: ObstacleMemory | None = None
         self._memory_segment: int | None = None  # odometry segment the points belong to
+        # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
+        # matching LiDAR scans (`memory_scan_matching`); every pose the memory uses is C P.
+        self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
@@ -233,6 +239,10 @@ class FusionStream(Generic[T]):
 
     def reconfigure(self, config: FusionConfig) -> None:
         """Use `config` from the next scan on (tables are rebuilt, odometry limits reset)."""
+        previous = getattr(self, 'config', None)
+        if previous is not None and previous.memory_scan_matching != config.memory_scan_matching:
+            # The remembered points lie in the corrected frame or odometry's: not in the other.
+            self._drop_memory('memory_scan_matching changed')
         self.config = config
         self.pipeline = FusionPipeline(config)
         self._parameters = Extrinsics.from_config(config)
@@ -248,6 +258,7 @@ class FusionStream(Generic[T]):
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         if not config.memory:
             self.memory = None
+            self.drift.reset()
         elif (
             self.memory is None
             or self.memory.settings.side != settings.side
@@ -614,13 +625,15 @@ class FusionStream(Generic[T]):
             self._memory_frozen(scan.stamp_ns)
             return output
         if self._memory_segment is not None and base.segment != self._memory_segment:
-            self._drop_memory('odometry jumped (reset or relocalisation)')
+            self._drop_memory('odometry jumped (reset or relocalisation)')  # and the drift
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         config = self.config
         slab = (config.min_obstacle_height, config.max_obstacle_height)
-        placement = Placement.of(base.pose, self.base_to_laser(scan.frame_id))
-        robot = (base.pose.x, base.pose.y)
+        base_to_laser = self.base_to_laser(scan.frame_id)
+        pose = self._corrected(scan, base.pose, base_to_laser)
+        placement = Placement.of(pose, base_to_laser)
+        robot = (pose.x, pose.y)
         if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
             seen_from = self._clear_seen(
                 memory,
@@ -663,6 +676,23 @@ class FusionStream(Generic[T]):
         fused = merge_scans(instant if instant is not None else output.lidar, remembered)
         return replace(output, fused=fused, instant=instant, memory_scan=remembered)
 
+    def _corrected(self, scan: Scan, base: PlanarPose, base_to_laser: Transform) -> PlanarPose:
+        """The base's pose in the memory's frame at `scan`'s stamp, the drift correction
+        first updated from `scan` (the first LiDAR's, de-skewed when odometry allowed)."""
+        if not self.config.memory_scan_matching:
+            return base
+        result = self.drift.update(scan, base, base_to_laser)
+        if result is not None and result.refused is not None:
+            self.counts.drift_refused += 1
+            self._note_once(
+                f'drift {result.refused.name}',
+                f'memory scan matching refused ({result.refused.value}): the memory follows '
+                'odometry alone from that scan on, until a match succeeds again',
+            )
+        elif result is not None:
+            self.counts.drift_matched += 1
+        return self.drift.corrected(base)
+
     def _clear_seen(
         self,
         memory: ObstacleMemory,
@@ -678,6 +708,8 @@ class FusionStream(Generic[T]):
         if camera_base.pose is None or camera_base.segment != self._memory_segment:
             return None
         base = camera_base.pose
+        if self.config.memory_scan_matching:
+            base = self.drift.corrected(base)  # the memory's frame (see `_corrected`)
         odom_to_base = Transform.from_rpy(0.0, 0.0, base.yaw, (base.x, base.y, 0.0))
         odom_to_optical = odom_to_base @ base_to_optical
         config = self.config
@@ -729,6 +761,7 @@ class FusionStream(Generic[T]):
             self._memory_placed_ns = None
 
     def _drop_memory(self, why: str) -> None:
+        self.drift.reset()  # the odometry frame the correction was for is gone too
         if self.memory is not None and len(self.memory):
             self.memory.clear()
             self.counts.memory_dropped += 1

@@ -330,3 +330,11 @@ def test_a_camera_gap_between_two_reports_is_reported_by_the_next_one():
     health = live.health(2.5)
     assert (health.level, health.state) == (Level.WARN, State.PASS_THROUGH)
     assert live.health(2.6).level is Level.OK  # the window after it saw only fused scans
+
+
+def test_health_reports_the_memory_s_scan_matches():
+    # The synthetic scene has no odometry: no memory, so nothing is matched or refused.
+    messages = scene_messages(Scene(duration=1.0))
+    live = LiveFusion(FusionConfig())
+    feed(live, messages)
+    assert live.health(1.0).values['memory scan matches (accepted / refused)'] == '0 / 0'

@@ -441,6 +441,9 @@ class LiveFusion:
             'de-skewed': str(counts.deskewed),
             'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
             'memory dropped': str(counts.memory_dropped),
+            'memory scan matches (accepted / refused)': (
+                f'{counts.drift_matched} / {counts.drift_refused}'
+            ),
             'extrinsics': self.extrinsics_source,
             **{f'passed ({reason.value})': str(n) for reason, n in counts.passed.items()},
             **{f'malformed {kind}': str(count) for kind, count in sorted(counts.malformed.items())},
