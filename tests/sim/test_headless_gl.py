@@ -67,3 +67,18 @@ def test_importing_the_gl_choice_does_not_import_mujoco():
         [sys.executable, '-c', script], capture_output=True, text=True, check=True
     ).stdout
     assert out.split() == ['False']
+
+
+def test_the_entry_points_that_choose_a_gl_leave_mujoco_unimported_until_they_do():
+    # `scanfuse demo` imports its module, then chooses (`run_demo`); the CLI modules choose
+    # before importing the simulator. An import of MuJoCo on the way in would leave the
+    # demo on ray casting, whose numbers differ slightly from the renderer's.
+    script = (
+        'import sys\n'
+        'import scanfuse.app.demo, scanfuse.cli, scanfuse.evaluate.cli\n'
+        'print("mujoco" in sys.modules)\n'
+    )
+    out = subprocess.run(
+        [sys.executable, '-c', script], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.split() == ['False']

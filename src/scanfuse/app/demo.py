@@ -30,7 +30,6 @@ from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.floor_fit import fit_floor
 from scanfuse.convert.obstacle import obstacle_scan
 from scanfuse.convert.row import row_scan
-from scanfuse.evaluate.figures import ScanLayer, depth_and_scans_figure
 from scanfuse.scan import AngleGrid, Scan
 from scanfuse.transforms import Extrinsics
 
@@ -93,6 +92,10 @@ def summarize(scan: Scan) -> tuple[str, str, str]:
 
 def core_demo(out: Path, console: Console) -> Path:
     """Write `out/demo_core.png` and print what each method reports on one frame."""
+    # Imported here: the figures import the simulator, hence MuJoCo, which must not be
+    # imported before `run_demo` has chosen its GL backend.
+    from scanfuse.evaluate.figures import ScanLayer, depth_and_scans_figure  # noqa: PLC0415
+
     out.mkdir(parents=True, exist_ok=True)
     frame = load_frame()
     config = FusionConfig()
