@@ -56,29 +56,23 @@ def test_nothing_changes_once_mujoco_is_imported():
     assert env_out.split() == ['None', 'None']
 
 
-def test_importing_the_gl_choice_does_not_import_mujoco():
-    # MuJoCo reads MUJOCO_GL once, at its import: choosing must come first.
-    script = (
-        'import sys\n'
-        'from scanfuse.sim.headless_gl import choose_headless_gl\n'
-        'print("mujoco" in sys.modules)\n'
-    )
+def mujoco_imported_by(imports: str) -> bool:
+    """Whether `imports` (one import statement) imports MuJoCo, in a fresh interpreter."""
+    script = f'import sys\n{imports}\nprint("mujoco" in sys.modules)\n'
     out = subprocess.run(
         [sys.executable, '-c', script], capture_output=True, text=True, check=True
     ).stdout
-    assert out.split() == ['False']
+    return out.split() == ['True']
+
+
+def test_importing_the_gl_choice_does_not_import_mujoco():
+    # MuJoCo reads MUJOCO_GL once, at its import: choosing must come first.
+    assert not mujoco_imported_by('from scanfuse.sim.headless_gl import choose_headless_gl')
+    assert mujoco_imported_by('import mujoco')  # the check itself can tell
 
 
 def test_the_entry_points_that_choose_a_gl_leave_mujoco_unimported_until_they_do():
     # `scanfuse demo` imports its module, then chooses (`run_demo`); the CLI modules choose
     # before importing the simulator. An import of MuJoCo on the way in would leave the
     # demo on ray casting, whose numbers differ slightly from the renderer's.
-    script = (
-        'import sys\n'
-        'import scanfuse.app.demo, scanfuse.cli, scanfuse.evaluate.cli\n'
-        'print("mujoco" in sys.modules)\n'
-    )
-    out = subprocess.run(
-        [sys.executable, '-c', script], capture_output=True, text=True, check=True
-    ).stdout
-    assert out.split() == ['False']
+    assert not mujoco_imported_by('import scanfuse.app.demo, scanfuse.cli, scanfuse.evaluate.cli')
