@@ -140,32 +140,23 @@ LATCHED = Qos(
 OPTICAL_ROTATION = (-0.5, 0.5, -0.5, 0.5)
 
 
+def _yawed_mount(
+    frame: str, position: tuple[float, float, float], yaw: float, stamp_ns: int
+) -> StampedTransform:
+    """base_link -> a sensor mounted level, turned `yaw` about z (a LiDAR, a 3D LiDAR)."""
+    half_yaw = yaw / 2
+    return StampedTransform(
+        BASE_FRAME, frame, position, (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)), stamp_ns
+    )
+
+
 def static_transforms(robot: RobotSpec, stamp_ns: int = EPOCH_NS) -> list[StampedTransform]:
     """base_link -> each laser, base_link -> each camera_link, camera_link -> optical frame."""
-    transforms = []
-    for lidar in robot.lidars():
-        half_yaw = lidar.yaw / 2
-        transforms.append(
-            StampedTransform(
-                BASE_FRAME,
-                lidar.frame,
-                (lidar.x, lidar.y, lidar.z),
-                (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
-                stamp_ns,
-            )
-        )
-    if robot.cloud is not None:
-        cloud = robot.cloud
-        half_yaw = cloud.yaw / 2
-        transforms.append(
-            StampedTransform(
-                BASE_FRAME,
-                cloud.frame,
-                (cloud.x, cloud.y, cloud.z),
-                (0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
-                stamp_ns,
-            )
-        )
+    mounts = (*robot.lidars(), *((robot.cloud,) if robot.cloud is not None else ()))
+    transforms = [
+        _yawed_mount(mount.frame, (mount.x, mount.y, mount.z), mount.yaw, stamp_ns)
+        for mount in mounts
+    ]
     for camera in robot.cameras():
         transforms.append(
             StampedTransform(
