@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from scanfuse.camera import CameraModel
+from scanfuse.errors import InputError
 from scanfuse.memory import (
-    OWN_WIDTH,
     MemorySettings,
     ObstacleMemory,
     Placement,
@@ -48,11 +48,12 @@ def test_two_neighbouring_cells_are_drawn_as_the_line_between_them_at_the_nearer
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     nearer = math.hypot(1.0, 0.0125)
     assert at_degrees(ranges, 1.4) == pytest.approx(nearer, abs=1e-6)  # between the two
-    # Beyond the ends only the points' own width: a quarter cell (0.18 degrees at 1 m).
-    own = math.degrees(OWN_WIDTH * 0.0125 / 1.0)
-    assert at_degrees(ranges, 2.148 + own - 0.1) == pytest.approx(math.hypot(1, 0.0375), abs=1e-6)
-    assert math.isnan(at_degrees(ranges, 2.148 + own + 0.15))
-    assert math.isnan(at_degrees(ranges, 0.716 - own - 0.15))
+    # The line ends at the points: their own slots, centred on 0.7 and 2.1 degrees, are the
+    # last; the slots beside them (0.6 and 2.2) are free.
+    assert at_degrees(ranges, 2.148) == pytest.approx(nearer, abs=1e-6)
+    assert math.isnan(at_degrees(ranges, 2.2))
+    assert at_degrees(ranges, 0.716) == pytest.approx(nearer, abs=1e-6)
+    assert math.isnan(at_degrees(ranges, 0.6))
 
 
 def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
@@ -60,9 +61,19 @@ def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
     memory.add(np.array([1.0]), np.array([0.0125]), 0, robot=ORIGIN)  # 0.716 degrees
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     assert at_degrees(ranges, 0.716) == pytest.approx(math.hypot(1.0, 0.0125), abs=1e-6)
-    # Widened by half a cell either side it would reach 0.716 + 0.716 = 1.43 degrees.
-    assert math.isnan(at_degrees(ranges, 1.2))
-    assert np.count_nonzero(np.isfinite(ranges)) <= 5
+    # Its own slot alone, [0.65, 0.75) degrees: widened by half a cell either side it would
+    # reach 0.716 + 0.716 = 1.43 degrees.
+    own = int(GRID.slot_of(np.array([0.0125]))[0])  # the bearing: atan(0.0125) = 0.0125 rad
+    assert np.flatnonzero(np.isfinite(ranges)).tolist() == [own]
+
+
+def test_a_lone_point_near_the_sensor_still_fills_only_its_own_slot():
+    memory = ObstacleMemory()
+    # At 0.3 m a tenth-of-a-degree slot is 0.5 mm wide: any width of its own would spill.
+    memory.add(np.array([0.3]), np.array([0.0]), 0, robot=ORIGIN)
+    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
+    assert np.count_nonzero(np.isfinite(ranges)) == 1
+    assert at_degrees(ranges, 0.0) == pytest.approx(0.3, abs=1e-9)
 
 
 def test_a_filled_area_reads_its_near_border_whatever_is_inside():
@@ -97,14 +108,9 @@ def test_only_cells_that_enough_pixels_fall_in_are_remembered():
         memory.add_dense(x, y, 0, min_count=3, robot=ORIGIN) == 1
     )  # three in cell (40, 0), two in (42, 0)
     kept_x, kept_y = memory.points()
-    assert kept_x.size == 1
-    # One of the three points of cell (40, 0) is kept, not the pair's of (42, 0): which one
-    # numpy does not promise (repeated indices in one assignment), so the test takes the
-    # cell's bounds, [40, 41) and [0, 1) cells of `cell` metres.
-    cell = memory.settings.cell
-    assert 40 * cell <= kept_x[0] < 41 * cell
-    assert 0.0 <= kept_y[0] < cell
-    assert kept_x[0] in x[:3]
+    # The mean of the three points of cell (40, 0), not the pair's of (42, 0).
+    assert kept_x.tolist() == pytest.approx([1.002], abs=1e-12)
+    assert kept_y.tolist() == pytest.approx([0.002], abs=1e-12)
 
 
 # A 4 x 3 pixel camera 0.2 m up, looking along +x: pixel (u, v) has the ray
@@ -134,6 +140,35 @@ def test_slab_points_of_a_float_image_skip_nan():
     x, y = slab_points(depth, TINY, LOOKING_AHEAD, slab=(0.03, 0.5), range_min=0.2, range_max=3.0)
     np.testing.assert_allclose(x, [2.0], atol=1e-6)
     np.testing.assert_allclose(y, [0.01], atol=1e-6)
+
+
+def test_slab_points_that_disagree_with_a_horizontal_neighbour_are_left_out():
+    depth = np.full((3, 4), 1000, dtype=np.uint16)
+    depth[0, 2] = 1030  # 3 % behind its neighbours: more than 2 % apart
+    depth[1, 0] = 0  # no return beside pixel (1, 1)
+    depth[1, 3] = 1015  # 1.5 % behind pixel (1, 2): within 2 %
+    x, y = slab_points(
+        depth, TINY, LOOKING_AHEAD, slab=(0.195, 0.5), range_min=0.2, range_max=3.0,
+        agreement=0.02,
+    )  # fmt: skip
+    # Columns 0 and 3 have one neighbour each; row 0's middle pixels each have the 1.03 m
+    # one beside (or are it); (1, 1) has the empty pixel beside it. Left: (1, 2), at
+    # x_n = 0.005, the point (1, -0.005).
+    np.testing.assert_allclose(x, [1.0], atol=1e-6)
+    np.testing.assert_allclose(y, [-0.005], atol=1e-6)
+    everything = slab_points(
+        depth, TINY, LOOKING_AHEAD, slab=(0.195, 0.5), range_min=0.2, range_max=3.0
+    )
+    assert everything[0].size == 7  # without it: rows 0 and 1 but the empty pixel
+
+
+def test_slab_points_refuse_a_negative_agreement():
+    depth = np.full((3, 4), 1000, dtype=np.uint16)
+    with pytest.raises(InputError, match=r'agreement must be a share >= 0, got -0\.1'):
+        slab_points(
+            depth, TINY, LOOKING_AHEAD, slab=(0.0, 0.5), range_min=0.2, range_max=3.0,
+            agreement=-0.1,
+        )  # fmt: skip
 
 
 # Four 90-degree slots centred on -180, -90, 0 and 90 degrees.

@@ -307,3 +307,51 @@ def test_scans_with_no_overlap_are_refused_as_too_few_pairs():
     result = match(reference(lidar_scan(ahead)), lidar_scan(behind), prediction)
     assert result.refused is Refusal.TOO_FEW_PAIRS
     assert result.pose == prediction
+
+
+def bent(first: PlanarPose, second: PlanarPose, noise: float, seed: int) -> Scan:
+    """A scan whose first half was swept from `first`, the rest from `second`: what the
+    de-skew leaves of a sweep during which the wheels slipped (odometry turned, the robot
+    did not)."""
+    ranges = room(first, noise, seed).ranges.copy()
+    ranges[READINGS // 2 :] = room(second, noise, seed).ranges[READINGS // 2 :]
+    return lidar_scan(ranges)
+
+
+def test_a_scan_bent_by_a_slip_is_refused_and_the_next_straight_one_recovers_the_slip():
+    drift = DriftCorrection()
+    mount = Transform()
+    standing = PlanarPose(0.0, 0.0, 0.0)
+    for k in range(12):
+        drift.update(room(base_in_room(standing), 0.005, k), standing, mount)
+    # During the next sweep the wheels turn 0.08 rad in place and the robot does not: the
+    # de-skew turns the sweep's second half by that much.
+    slipped = base_in_room(PlanarPose(0.0, 0.0, -0.08))
+    before = drift.correction
+    result = drift.update(bent(base_in_room(standing), slipped, 0.005, 12), standing, mount)
+    assert result is not None
+    assert result.refused is Refusal.DISTORTED
+    assert drift.correction == before  # kept
+    # The next sweep is straight; odometry now says 0.08 rad, matched against the kept
+    # reference the turn is taken back.
+    odometry = PlanarPose(0.0, 0.0, 0.08)
+    result = drift.update(room(base_in_room(standing), 0.005, 13), odometry, mount)
+    assert result is not None
+    assert result.accepted
+    assert drift.corrected(odometry).yaw == pytest.approx(0.0, abs=2e-3)
+
+
+def test_a_scene_whose_matches_all_get_worse_is_refused_only_until_the_median_follows():
+    drift = DriftCorrection()
+    mount = Transform()
+    standing = PlanarPose(0.0, 0.0, 0.0)
+    for k in range(12):
+        drift.update(room(base_in_room(standing), 0.005, k), standing, mount)
+    verdicts = []
+    for k in range(12, 28):  # from now on three times the noise (clutter, a worse sensor)
+        result = drift.update(room(base_in_room(standing), 0.015, k), standing, mount)
+        assert result is not None
+        verdicts.append(result.refused)
+    # The window of 16 holds 12 quiet residuals: the median turns once 9 noisy ones are in.
+    assert verdicts[0] is Refusal.DISTORTED
+    assert verdicts[9:] == [None] * 7

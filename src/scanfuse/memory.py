@@ -6,8 +6,11 @@ the camera's obstacle points in the odometry frame and merges them into every ou
 scan, seen from the LiDAR at the scan's stamp. What it takes in (`FusionStream`): the
 depth scan's reading of every slot, and per depth frame every slab pixel no nearer than
 its slot's reading (`slab_points`, `not_nearer_than`: a box's sides, its top back to the
-far edge, not only the face nearest the LiDAR) in cells that several pixels fill
-(`add_dense`: stray floor noise inside the slab lies alone in its cell); of both, only
+far edge, not only the face nearest the LiDAR) that agrees with both its horizontal
+neighbours (`agreement`: a pixel on a box's outline, or one that stereo noise threw back
+along its ray, lands beside the box once seen from elsewhere), in cells that several
+pixels fill (`add_dense`: stray floor noise inside the slab lies alone in its cell), the
+mean of a cell's pixels (the noise averages out); of both, only
 what the LiDAR does not see at its own height (`unseen_by`): the LiDAR sees that again
 from anywhere, and a wall remembered on drifting odometry would stand in front of it.
 The stream places every point with the odometry pose corrected by scan matching
@@ -15,12 +18,12 @@ The stream places every point with the odometry pose corrected by scan matching
 below is that corrected frame, which stays on the walls where wheel odometry drifts.
 
 Store: a rolling grid of `cell` metre cells around the robot, one point per cell (the
-newest seen there, exact coordinates kept), so its size is bounded by construction:
+newest seen there, its coordinates kept), so its size is bounded by construction:
 (2 radius / cell)^2 cells. A point is forgotten when it is more than `radius` from the
 robot, older than `max_age`, or when the camera looks at its place again and sees it
 free. Only the camera clears: the LiDAR's plane passes over low obstacles by design.
 Drawn into a scan, neighbouring cells are joined by the line between their points, and a
-point on its own is a quarter cell wide (`_forget_and_project_loop`).
+point on its own fills its slot alone (`_forget_and_project_loop`).
 
 Clearing (per depth frame fused): the memory holds, for every place, what the camera saw
 the last time it looked there. A remembered point whose whole slab column (a few heights:
@@ -57,9 +60,6 @@ if TYPE_CHECKING:
 
     F64 = npt.NDArray[np.float64]
 
-# How wide a remembered point is on its own, as a share of the cell: the gaps between
-# neighbouring cells are drawn as lines (`_forget_and_project_loop`).
-OWN_WIDTH = 0.25
 # Cells kept at most: 2^21 (about 60 MB of arrays); a larger radius needs larger cells.
 MAX_CELLS = 1 << 21
 # Heights of the slab a remembered point is tried at, as fractions from bottom to top.
@@ -143,7 +143,6 @@ def _forget_and_project_loop(
     increment: float,
     count: int,
     turn: int,
-    half_width: float,
     side: int,
     centres: Any,
     ranges: Any,
@@ -154,14 +153,15 @@ def _forget_and_project_loop(
     and per slot keep the nearest of the others seen from a sensor at origin (ox, oy) with
     axes (xx, xy), (yx, yy) in odom (+Inf where none falls: no NaN inside, for fastmath).
 
-    Each point fills the slots `half_width` either side of it covers; then every point and
-    each remembered neighbour cell (east, north, north-east, north-west: each pair once)
-    fill the slots between them at the nearer of their two ranges (a point whose four
-    side neighbours are all remembered lies inside an area and draws none: seen from
-    outside, the area's border is no farther than a cell behind). A surface kept as one
-    point per cell is so drawn as the polyline through its points: no gaps between cells
-    at any range, and no overhang past its ends (a point widened by half a cell either side
-    hangs that far past a box's edge into the free slot beside it: a false obstacle).
+    Each point fills its own slot; then every point and each remembered neighbour cell
+    (east, north, north-east, north-west: each pair once) fill the slots between them at
+    the nearer of their two ranges (a point whose four side neighbours are all remembered
+    lies inside an area and draws none: seen from outside, the area's border is no farther
+    than a cell behind). A surface kept as one point per cell is so drawn as the polyline
+    through its points: no gaps between cells at any range, and no overhang past its ends
+    (a point widened by even a quarter cell, 3 mm, hangs past a box's edge into the free
+    slot beside it seen from 0.5 m: a false obstacle; in the memory trials that width made
+    a third of the false slots).
 
     `unrolled` (3 `turn` values) is the turn laid out three times, so that a run of slots
     never wraps: each slot is a branch-free min, and the copies fold into `out` at the end.
@@ -169,8 +169,6 @@ def _forget_and_project_loop(
     """
     unrolled[:] = np.inf
     scale = 1.0 / increment
-    own_reach = half_width * abs(scale)
-    widest = 0.5 * turn - 1.0  # a run never leaves the three copies
     for i in range(keys.size):
         ranges[i] = -1.0
         if keys[i] < 0:
@@ -196,11 +194,8 @@ def _forget_and_project_loop(
         centre += turn  # the middle copy
         centres[i] = centre
         ranges[i] = r
-        reach = min(own_reach / r if r > half_width else abs(scale), widest)
-        first = int(centre - reach)  # positive: int() is floor
-        last = int(centre + reach)
-        for slot in range(first, last + 1):
-            unrolled[slot] = min(unrolled[slot], r)
+        slot = int(centre)  # positive: int() is floor
+        unrolled[slot] = min(unrolled[slot], r)
     east = 1 << 31  # key steps: `ObstacleMemory._cells`
     for column in range(side):
         right = column + 1 if column + 1 < side else 0
@@ -354,17 +349,23 @@ class ObstacleMemory:
     def add_dense(
         self, x: F64, y: F64, stamp_ns: int, *, min_count: int, robot: tuple[float, float]
     ) -> int:
-        """Remember the points (odometry frame) within `radius` of `robot` of the cells that
-        `min_count` or more of them fall in, one per cell; how many cells. Many pixels of one
-        surface fill a cell, while a stray pixel of floor noise inside the slab lies alone in
-        its cell. (Within the radius no two cells share a slot, so counting by slot is exact.)"""
+        """Remember, for each cell that `min_count` or more of the points (odometry frame)
+        within `radius` of `robot` fall in, the mean of its points; how many cells. Many
+        pixels of one surface fill a cell, while a stray pixel of floor noise inside the slab
+        lies alone in its cell; the mean of a cell's pixels is steadier than any one of them
+        (stereo noise moves each along its own ray) and lies in the cell, on the surface's
+        side of it. (Within the radius no two cells share a slot, so counting by slot is
+        exact.)"""
         keep = self._within(x, y, robot)
         x, y = x[keep], y[keep]
         index, _ = self._cells(x, y)
-        counts = np.bincount(index, minlength=self._key.size)
-        dense = counts[index] >= min_count
-        self.add(x[dense], y[dense], stamp_ns, robot=robot)
-        return int(np.count_nonzero(counts >= min_count))
+        slots = self._key.size
+        counts = np.bincount(index, minlength=slots)
+        dense = np.flatnonzero(counts >= min_count)
+        sum_x = np.bincount(index, weights=x, minlength=slots)[dense]
+        sum_y = np.bincount(index, weights=y, minlength=slots)[dense]
+        self.add(sum_x / counts[dense], sum_y / counts[dense], stamp_ns, robot=robot)
+        return int(dense.size)
 
     def scan(
         self, sensor: Placement, grid: AngleGrid, *, robot: tuple[float, float], now_ns: int
@@ -394,7 +395,6 @@ class ObstacleMemory:
             grid.angle_increment,
             grid.count,
             turn,
-            OWN_WIDTH * self.settings.cell / 2.0,
             self.settings.side,
             self._centres,
             self._ranges,
@@ -534,6 +534,7 @@ def slab_points(
     slab: tuple[float, float],
     range_min: float,
     range_max: float,
+    agreement: float = 0.0,
 ) -> tuple[F64, F64]:
     """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
 
@@ -541,7 +542,12 @@ def slab_points(
     return; float metres, NaN none), heights above the odometry frame's z = 0 within
     `slab`: the points the obstacle method bins by slot, before it keeps only the near
     cluster of each (the faces behind it, a box's far edge seen over its top, are here too).
+    With `agreement` > 0, only pixels whose left and right neighbours' depths lie within
+    that share of their own (a pixel of the image's first or last column has no two).
     """
+    if not (math.isfinite(agreement) and agreement >= 0.0):
+        msg = f'slab_points agreement must be a share >= 0, got {agreement}'
+        raise InputError(msg)
     image = np.ascontiguousarray(depth)
     metres = image.dtype != np.uint16
     pixels = image.astype(np.float32) if metres else image
@@ -559,6 +565,7 @@ def slab_points(
         slab[1],
         range_min,
         range_max,
+        agreement,
         out_x,
         out_y,
     )
@@ -576,6 +583,7 @@ def _slab_loop(
     high: float,
     range_min: float,
     range_max: float,
+    agreement: float,
     out_x: Any,
     out_y: Any,
 ) -> int:
@@ -592,6 +600,15 @@ def _slab_loop(
             height = rotation[2, 0] * ox + rotation[2, 1] * oy + rotation[2, 2] * z + origin[2]
             if not low <= height <= high:
                 continue
+            if agreement > 0.0:
+                if u == 0 or u == columns - 1:
+                    continue
+                apart = agreement * z  # NaN and 0 neighbours fail both tests
+                if not (
+                    abs(depth[v, u - 1] * scale - z) <= apart
+                    and abs(depth[v, u + 1] * scale - z) <= apart
+                ):
+                    continue
             out_x[found] = (
                 rotation[0, 0] * ox + rotation[0, 1] * oy + rotation[0, 2] * z + origin[0]
             )

@@ -24,6 +24,8 @@ plausibly be wrong by, the match is refused and odometry's guess is returned.
 from __future__ import annotations
 
 import math
+import statistics
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, Any
@@ -63,6 +65,7 @@ class Refusal(str, Enum):
     RESIDUAL = 'the scans do not agree (residual too large after matching)'
     YAW_UNOBSERVABLE = 'the scene does not fix the turn (no walls across the view)'
     IMPLAUSIBLE = 'the correction is larger than odometry can plausibly be wrong by'
+    DISTORTED = 'the residual is far above the recent matches (scan swept while wheels slipped)'
 
 
 @dataclass(frozen=True)
@@ -438,6 +441,13 @@ def _plausible(prediction: RelativePose, estimate: RelativePose, settings: Match
 # correction, scan after scan; against a kept scan a standing robot adds none.
 KEYFRAME_TURN = 0.35
 KEYFRAME_SHIFT = 0.3
+# A scan swept while the wheels slipped (a turn starting or reversing) was de-skewed with the
+# slip's wrong turn, and bent so its match is off by about the slip (measured in the
+# simulator: 0.05 rad, at twice the median residual of the scans around it). Such a scan's
+# match is refused when its residual exceeds this many times the median of the last
+# `RECENT_MATCHES`; the reference is kept, so the next, straight scan recovers the slip.
+DISTORTION_RATIO = 1.6
+RECENT_MATCHES = 16
 
 
 @dataclass
@@ -466,12 +476,14 @@ class DriftCorrection:
         self.refused: dict[Refusal, int] = {}
         self.last: Match | None = None
         self._keyframe: _Keyframe | None = None
+        self._recent: deque[float] = deque(maxlen=RECENT_MATCHES)  # residuals of late matches
 
     def reset(self) -> None:
         """Back to odometry (C the identity): the odometry frame itself changed."""
         self.correction = PlanarPose(0.0, 0.0, 0.0)
         self._keyframe = None
         self.last = None
+        self._recent.clear()
 
     def corrected(self, pose: PlanarPose) -> PlanarPose:
         """An odometry pose of the base in the corrected frame: C composed with it."""
@@ -496,8 +508,11 @@ class DriftCorrection:
             float(predicted[0, 3]),
             float(predicted[1, 3]),
         )
-        result = match(key.ref, scan, prediction, self.settings)
+        result = self._screened(match(key.ref, scan, prediction, self.settings), prediction)
         self.last = result
+        if result.refused is Refusal.DISTORTED:
+            self.refused[result.refused] = self.refused.get(result.refused, 0) + 1
+            return result  # C and the reference stay: the next scan matches against it
         if not result.accepted:
             assert result.refused is not None
             self.refused[result.refused] = self.refused.get(result.refused, 0) + 1
@@ -519,4 +534,17 @@ class DriftCorrection:
             or math.hypot(true_move.x, true_move.y) > KEYFRAME_SHIFT
         ):
             self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, corrected)
+        return result
+
+    def _screened(self, result: Match, prediction: RelativePose) -> Match:
+        """`result`, or refused as `DISTORTED` when its residual is far above the recent
+        matches' (the window holds refused ones too, so that a scene where every match is
+        worse, more clutter, raises the median instead of refusing from then on)."""
+        if not result.accepted:
+            return result
+        recent = self._recent
+        typical = statistics.median(recent) if len(recent) >= RECENT_MATCHES // 2 else math.inf
+        recent.append(result.rms)
+        if result.rms > DISTORTION_RATIO * typical:
+            return Match(prediction, Refusal.DISTORTED, result.pairs, result.rms, 0)
         return result

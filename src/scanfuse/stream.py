@@ -81,6 +81,12 @@ NANOSECONDS = 1_000_000_000
 MAX_FRAMES = 16
 # Pixels of one depth frame a memory cell must hold to be remembered (`_add_slab`).
 MEMORY_CELL_PIXELS = 3
+# A slab pixel is remembered only when both its horizontal neighbours' depths lie within
+# this share of its own: the D435's specified depth RMS error (2 % at 2 m). A pixel on an
+# obstacle's outline, or one that stereo noise threw back along its ray, fails it; seen
+# later from beside the obstacle it would stand in the free slot next to it. The live scan
+# still uses every pixel.
+MEMORY_NEIGHBOUR_AGREEMENT = 0.02
 # A remembered point the LiDAR sees (its reading no farther than the point by this much,
 # metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
 LIDAR_SEES_MARGIN = (0.05, 0.02)
@@ -733,9 +739,10 @@ class FusionStream(Generic[T]):
         placement: Placement,
         robot: tuple[float, float],
     ) -> None:
-        """Remember every slab pixel of `frame` behind its slot's obstacle reading, one per
-        dense cell: a box's sides and far corners, not only the face nearest the LiDAR, so
-        that what clearing forgets of a place is replaced by all the camera sees there."""
+        """Remember the slab pixels of `frame` behind their slot's obstacle reading that
+        agree with their neighbours, as the mean of each dense cell's: a box's sides and far
+        corners, not only the face nearest the LiDAR, so that what clearing forgets of a
+        place is replaced by all the camera sees there."""
         config = self.config
         x, y = slab_points(
             frame.depth,
@@ -744,6 +751,7 @@ class FusionStream(Generic[T]):
             slab=(config.min_obstacle_height, config.max_obstacle_height),
             range_min=config.range_min,
             range_max=config.range_max,
+            agreement=MEMORY_NEIGHBOUR_AGREEMENT,
         )
         keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)
         memory.add_dense(
