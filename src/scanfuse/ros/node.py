@@ -8,7 +8,9 @@ Subscriptions are raw (CDR bytes), so messages are decoded and encoded by
 sensor-data QoS (best effort, keep last 5), which matches both best-effort
 (Gazebo, camera drivers) and reliable publishers; outputs are reliable, keep
 last 10, which slam_toolbox's, Nav2's and RViz's subscribers (reliable or best
-effort) all accept. Only rclpy API that Humble has is used.
+effort) all accept. The inputs keep rclpy's default QoS event handlers (a publisher the
+node cannot hear is logged); the outputs have none, to keep the executor's wait set small.
+Only rclpy API that Humble has is used.
 
 Named sources (`lidars`, `cameras`, `clouds`: string arrays; `NAME.field` parameters from
 the models of `scanfuse.sources`) are declared at start-up; every source beyond the first
