@@ -9,7 +9,9 @@ node is) republishes /scan on /scan_relay,
 so the node's latency can be read against what DDS and rclpy alone cost on this machine
 at this moment. Latency is from publishing a LiDAR scan to receiving the output with the
 same stamp (one monotonic clock), DDS both ways. CPU is the node's user + system time
-over the measured seconds (100 % = one core).
+over the measured seconds (100 % = one core), and the relay's over the same seconds: what
+rclpy and DDS alone cost for one 10 Hz scan in and out (the relay reads neither the depth
+images nor CameraInfo).
 
 Start-up: the publishers (and the relay) are up for `SETTLE_S` first, as a robot's drivers
 are; then from just before `Popen` of `python -m scanfuse.ros.node` to the first message on
@@ -199,7 +201,8 @@ def measure(
         )
     launched_wall = launched = float('nan')
     node_process: subprocess.Popen[bytes] | None = None
-    cpu = float('nan')
+    cpu = relay_cpu = float('nan')
+    relay_start = float('nan')
     try:
         began = time.monotonic()
         next_scan, next_depth = began, began + 1.0 / DEPTH_HZ / 3
@@ -232,6 +235,8 @@ def measure(
             if measure_from is not None and cpu_start is None and now >= measure_from:
                 assert node_process is not None
                 cpu_start, wall_start = _cpu_seconds(node_process.pid), now
+                if relay:
+                    relay_start = _cpu_seconds(processes[0].pid)
                 for values in latencies.values():
                     values.clear()
             if wall_start is not None and now >= wall_start + seconds:
@@ -258,7 +263,10 @@ def measure(
             assert cpu_start is not None
             assert wall_start is not None
             assert node_process is not None
-            cpu = (_cpu_seconds(node_process.pid) - cpu_start) / (time.monotonic() - wall_start)
+            elapsed = time.monotonic() - wall_start
+            cpu = (_cpu_seconds(node_process.pid) - cpu_start) / elapsed
+            if relay:
+                relay_cpu = (_cpu_seconds(processes[0].pid) - relay_start) / elapsed
     finally:
         node.destroy_node()
         rclpy.shutdown()
@@ -275,6 +283,7 @@ def measure(
     return {
         'latencies': latencies,
         'cpu': cpu,
+        'relay_cpu': relay_cpu,
         'first_fused_s': first_fused[0] - launched,
         'ready_s': ready,
         'scans': scans,
@@ -306,6 +315,13 @@ def run() -> list[Row]:
                 f'node CPU (share of one core), {label}',
                 float(result['cpu']),  # type: ignore[arg-type]
                 'user + system; target <= 6 %',
+                unit='share',
+            ),
+            Row(
+                'node',
+                f'relay CPU (same run), {label}',
+                float(result['relay_cpu']),  # type: ignore[arg-type]
+                'user + system; /scan in and out only (10 Hz)',
                 unit='share',
             ),
             Row(

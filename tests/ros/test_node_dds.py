@@ -281,6 +281,31 @@ def test_parameter_changes_at_run_time(tmp_path, loopback_factory):
     assert all(value == pytest.approx(WALL, abs=TOLERANCE) for value in after)
 
 
+def test_incompatible_qos_is_reported_for_inputs_by_the_node_and_for_outputs_by_the_peer(
+    tmp_path, loopback_factory
+):
+    """The node warns of an input publisher it cannot hear (rclpy's default handler on its
+    subscriptions); of a subscriber its outputs cannot reach, that subscriber's own node is
+    told (the node's publishers carry no event handlers: issue 12, CPU)."""
+    pytest.importorskip('tf2_msgs.msg')
+    loop = loopback_factory(**SCENE_PARAMS)
+    result = tmp_path / 'probe.json'
+    probe = loop.loopback('probe', 'qos-probe', '--out', str(result))
+    warning = "New publisher discovered on topic '/tf_static', offering incompatible QoS"
+    deadline = time.monotonic() + START_TIMEOUT
+    while warning not in loop.log('node'):
+        assert loop.node.poll() is None, loop.log('node')
+        assert time.monotonic() < deadline, loop.log('node')
+        time.sleep(0.05)
+    assert 'RELIABILITY' in loop.log('node').split(warning, 1)[1].splitlines()[0]
+    deadline = time.monotonic() + START_TIMEOUT
+    while not result.exists():
+        assert probe.poll() is None, loop.log('probe')
+        assert time.monotonic() < deadline, loop.log('probe')
+        time.sleep(0.05)
+    assert json.loads(result.read_text())['scan_fused_policy'] == 'DURABILITY'
+
+
 def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
     from tests.support.synthetic import REAR_TOPIC, two_lidar_messages, write_bag
 

@@ -5,6 +5,7 @@
     python -m tests.support.loopback set-param NAME VALUE --out RESULT.json
     python -m tests.support.loopback flood --seconds S [--done FILE]   malformed messages
     python -m tests.support.loopback relay FROM TO      republish LaserScan bytes (baseline)
+    python -m tests.support.loopback qos-probe --out RESULT.json   endpoints of incompatible QoS
 
 Data topics are published best effort (like Gazebo and camera drivers), /tf_static
 transient local. `record` writes what it received to an MCAP bag whose log times
@@ -259,6 +260,53 @@ def relay(source: str, target: str) -> int:
     return 0
 
 
+def qos_probe(out: Path, timeout: float = DISCOVERY_TIMEOUT_S) -> int:
+    """Endpoints whose QoS the node's cannot match in one policy each: a best-effort
+    transient-local /tf_static publisher (the node asks for reliable, transient local) and a
+    reliable transient-local /scan_fused subscription (the node offers reliable, volatile).
+    Waits for this side's own incompatible-QoS event on /scan_fused and writes the policy it
+    named to `out`; 0, or 2 on timeout."""
+    from rclpy.event_handler import SubscriptionEventCallbacks
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy, qos_policy_name_from_kind
+    from tf2_msgs.msg import TFMessage
+
+    from scanfuse.ros.node import OUTPUT_QOS
+
+    node = rclpy.create_node('scanfuse_qos_probe')
+    best_effort = QoSProfile(
+        depth=1,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    node.create_publisher(TFMessage, '/tf_static', best_effort)
+    policies: list[str] = []
+    late_joiner = QoSProfile(
+        depth=OUTPUT_QOS.depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    node.create_subscription(
+        LaserScan,
+        '/scan_fused',
+        lambda _raw: None,
+        late_joiner,
+        raw=True,
+        event_callbacks=SubscriptionEventCallbacks(
+            incompatible_qos=lambda event: policies.append(
+                qos_policy_name_from_kind(event.last_policy_kind)
+            )
+        ),
+    )
+    if not _spin_until(node, lambda: bool(policies), timeout):
+        print('qos-probe: no incompatible-QoS event on /scan_fused', file=sys.stderr)
+        return 2
+    out.write_text(json.dumps({'scan_fused_policy': policies[0]}), encoding='utf-8')
+    # Stay discoverable while the node reports the /tf_static publisher.
+    _spin_until(node, lambda: False, timeout)
+    node.destroy_node()
+    return 0
+
+
 def _diagnostic_level(raw: bytes, store: Any) -> int:
     statuses = store.deserialize_cdr(raw, DIAGNOSTICS).status
     return max((int(status.level) for status in statuses), default=0)
@@ -399,6 +447,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     relay_cmd = commands.add_parser('relay')
     relay_cmd.add_argument('source')
     relay_cmd.add_argument('target')
+    probe_cmd = commands.add_parser('qos-probe')
+    probe_cmd.add_argument('--out', type=Path, required=True)
     param_cmd = commands.add_parser('set-param')
     param_cmd.add_argument('name')
     param_cmd.add_argument('value')
@@ -414,6 +464,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         if args.command == 'relay':
             return relay(args.source, args.target)
+        if args.command == 'qos-probe':
+            return qos_probe(args.out)
         if args.command == 'flood':
             return flood(args.seconds, done=args.done)
         if args.command == 'record':

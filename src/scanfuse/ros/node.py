@@ -8,7 +8,9 @@ Subscriptions are raw (CDR bytes), so messages are decoded and encoded by
 sensor-data QoS (best effort, keep last 5), which matches both best-effort
 (Gazebo, camera drivers) and reliable publishers; outputs are reliable, keep
 last 10, which slam_toolbox's, Nav2's and RViz's subscribers (reliable or best
-effort) all accept. Only rclpy API that Humble has is used.
+effort) all accept. The inputs keep rclpy's default QoS event handlers (a publisher the
+node cannot hear is logged); the outputs have none, to keep the executor's wait set small.
+Only rclpy API that Humble has is used.
 
 Named sources (`lidars`, `cameras`, `clouds`: string arrays; `NAME.field` parameters from
 the models of `scanfuse.sources`) are declared at start-up; every source beyond the first
@@ -73,6 +75,11 @@ from scanfuse.ros.params import (
     source_param_specs,
 )
 from scanfuse.sources import KINDS
+
+try:  # Iron and later; Humble has the same class in rclpy.qos_event (deprecated since Iron)
+    from rclpy.event_handler import PublisherEventCallbacks
+except ImportError:  # pragma: no cover - Humble
+    from rclpy.qos_event import PublisherEventCallbacks
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -198,18 +205,16 @@ class ScanfuseNode:
         )
         self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
-        self.fused_pub = self.node.create_publisher(LaserScan, config.fused_topic, OUTPUT_QOS)
+        self.fused_pub = self._output_publisher(LaserScan, config.fused_topic)
         self.depth_pub = (
-            self.node.create_publisher(LaserScan, config.depth_scan_topic, OUTPUT_QOS)
+            self._output_publisher(LaserScan, config.depth_scan_topic)
             if config.publish_depth_scan
             else None
         )
         # The memory's outputs: the scan without it (SLAM) and the remembered points alone.
         self.instant_pub = self._optional_scan_publisher(config.memory, config.instant_topic)
         self.memory_pub = self._optional_scan_publisher(config.memory, config.memory_scan_topic)
-        self.diagnostics_pub = self.node.create_publisher(
-            DiagnosticArray, '/diagnostics', OUTPUT_QOS
-        )
+        self.diagnostics_pub = self._output_publisher(DiagnosticArray, '/diagnostics')
         self.tf_source = self._subscribe_tf()
         self.node.create_timer(1.0, self._publish_diagnostics)
         # One-shot timers at the waiting scans' deadlines (no polling: it cost CPU all the time).
@@ -226,7 +231,16 @@ class ScanfuseNode:
     def _optional_scan_publisher(self, wanted: bool, topic: str) -> Any:
         if not (wanted and topic):
             return None
-        return self.node.create_publisher(LaserScan, topic, OUTPUT_QOS)
+        return self._output_publisher(LaserScan, topic)
+
+    def _output_publisher(self, msg_type: Any, topic: str) -> Any:
+        """A publisher without rclpy's default QoS event handlers (issue 12): each is a
+        waitable that the executor adds to its wait set at every wake-up, and the warning they
+        give ("subscription requesting incompatible QoS") the subscriber's own node gives too
+        (rclpy's and rclcpp's default on the subscription side, RViz's topic status). The
+        inputs keep theirs: there the warning is ours to give."""
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        return self.node.create_publisher(msg_type, topic, OUTPUT_QOS, event_callbacks=quiet)
 
     def parameter_values(self) -> dict[str, Any]:
         return {name: self.node.get_parameter(name).value for name in self.specs}
