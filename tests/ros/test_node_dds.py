@@ -326,6 +326,7 @@ def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
     received = loop.received(linger=1.5)
     half = scene.angle_increment / 2
     checked = 0
+    rear_heard = False
     for _, raw in received['/scan_fused']:
         scan = scan_from_cdr(raw)
         if scan.stamp_ns < scene.start_ns + 0.15e9:
@@ -334,6 +335,13 @@ def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
         # Only the rear LiDAR (yaw pi) sees behind the side: the back wall at x = -1.5 m,
         # r = 1.5 / |cos| of a bearing within half a slot of the slot's (see test_node_sources).
         behind = (np.abs(b) >= 0.6 * math.pi) & (np.abs(b) <= 0.74 * math.pi)
+        # The player waits until it has matched the node's subscriptions, but the node's
+        # side may match the rear publisher a little later and lose its first (best-effort)
+        # scans: 1 run in 6 did. From the first scan with the rear's readings on, every one
+        # must have them (the count below bounds how many the start may cost).
+        rear_heard = rear_heard or bool(np.isfinite(scan.ranges[behind]).any())
+        if not rear_heard:
+            continue
         near = back_wall / np.abs(np.cos(np.abs(b[behind]) + half))
         far = back_wall / np.abs(np.cos(np.abs(b[behind]) - half))
         assert np.all((scan.ranges[behind] >= near - 1e-3) & (scan.ranges[behind] <= far + 1e-3))
