@@ -493,6 +493,24 @@ def _arc_pieces(
     return piece_owner[used], first_slot[used], last_slot[used] + 1
 
 
+def _tile_gaps(first: F64, last: F64, grid: AngleGrid) -> F64:
+    """Per tile arc [first, last] (slot coordinates) its distance in slots to the grid.
+
+    The arc widened by m slots each way meets the grid's slots [0, count) (modulo the turn)
+    when m >= the gap, as `_arc_pieces` of the widened arc would find a piece (up to
+    rounding at equality): 0 for an arc that meets the grid, else the shorter of the way
+    back from its start to the grid's end and on from its end to the grid's start (slot 0
+    one turn on). Inf for a tile without an arc (NaN).
+    """
+    turn = TWO_PI / abs(grid.angle_increment)
+    known = ~np.isnan(first)
+    start = np.mod(np.where(known, first, 0.0), turn)
+    end = start + np.where(known, last - first, 0.0)
+    gap = np.maximum(np.minimum(start - grid.count, turn - end), 0.0)
+    tile_gap: F64 = np.where(known, gap, np.inf)
+    return tile_gap
+
+
 def _runs_to_mask(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], count: int) -> Mask:
     """Slots inside any run [start, end): +1 where a run starts, -1 where it ends, summed."""
     marks = np.bincount(starts, minlength=count + 1) - np.bincount(ends, minlength=count + 1)
@@ -695,14 +713,27 @@ class ObstacleProjector:
         tile_last = np.concatenate([arcs[1] for arcs in tile_arcs])
         self.coverage = ViewCoverage.from_tile_arcs(tile_first, tile_last, shape, lidar_grid, tile)
         self.in_view = self.coverage.in_view
+        # The centre pixel (flat index) of each run's tile, for the compiled `_seen`.
+        across = self.coverage.columns.size
+        self._run_centres = (
+            self.coverage.rows[self.coverage.owner // across] * shape[1]
+            + self.coverage.columns[self.coverage.owner % across]
+        ).astype(np.int64)
         # Whether a point can land on this grid at all: the tiles' arcs widened by one slot
         # each way (the kernel's float32 points against these float64 arcs differ by far
         # less). A fragment of a revolution the camera cannot see (issue 12: 6 messages per
         # turn, each fused on its own) then costs no pass over the image: its scan is NaN.
-        widened = _arc_pieces(tile_first - 1.0, tile_last + 1.0, lidar_grid)[0]
-        self.sees_grid = bool(widened.size)
-        self._tile_span = (tile_first, tile_last)
+        # Per tile the same test leaves out of the pass the tiles that cannot reach the grid
+        # (`_spans`), so a fragment the camera sees in part reads only that part.
+        tiles_shape = (-(-shape[0] // tile), -(-shape[1] // tile))
+        self._tile_gap = _tile_gaps(tile_first, tile_last, lidar_grid).reshape(tiles_shape)
+        self._least_gap = float(self._tile_gap.min(initial=math.inf))
+        self.sees_grid = self._least_gap <= 1.0
         self._nearest_reach = nearest_reach
+        self._tile = tile
+        # The last margin's row spans (`_spans`): a frame without motion reuses them.
+        self._span_margin = math.nan
+        self._row_spans = np.zeros((shape[0], 2), dtype=np.int64)
         self.frames_converted = 0  # frames whose pixels went through the kernel or numpy
 
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
@@ -740,9 +771,8 @@ class ObstacleProjector:
             low, high = np.float32(self.range_min), np.float32(self.range_max)
         seen = np.empty(self.grid.count, dtype=np.bool_)
         self._kernel.seen_slots(
-            depth, coverage.rows, coverage.columns, low, high, coverage.owner, coverage.starts,
-            coverage.ends, seen,
-        )  # fmt: skip
+            depth.ravel(), self._run_centres, low, high, coverage.starts, coverage.ends, seen
+        )
         return seen
 
     def _valid_centres(self, depth: npt.NDArray[Any]) -> Mask:
@@ -815,38 +845,58 @@ class ObstacleProjector:
         depth = np.ascontiguousarray(depth)
         slots = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
         extremes = (*self._block_extremes[depth.dtype], self.drops is not None)
+        spans = self._spans(self._margin(motion))
         if self.threads == 1:
             kernel.nearest_squared(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
-                self.camera.width, *extremes, *slots, lookup.after, self.cluster_spread,
+                self.camera.width, spans, *extremes, *slots, lookup.after, self.cluster_spread,
                 self._nearest, self._bound[0], self._best, self._drop_slots,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
-                self.camera.width, self._bands, *extremes, *slots, lookup.after,
+                self.camera.width, spans, self._bands, *extremes, *slots, lookup.after,
                 self.cluster_spread, self._part_nearest, self._bound, self._best,
                 self._drop_slots,
             )  # fmt: skip
             self._nearest[:] = self._part_nearest[0]
         return self._best
 
-    def reaches(self, motion: PlanarMotion = IDENTITY_MOTION) -> bool:
-        """Whether a point of a frame, moved by `motion`, can land on this grid at all.
+    def _margin(self, motion: PlanarMotion) -> float:
+        """Slots by which a pixel's point, moved by `motion`, may land beyond its tile's arc.
 
         The motion turns every bearing by its angle and then shifts a point at r metres by at
         most asin(|t| / r) (t: its translation), r at least the nearest reach of any pixel's
-        slab segment: the tiles' arcs widened by that, plus one slot, cover every point.
+        slab segment (times the motion's scale, 1 for a rotation): the arcs widened by that,
+        plus one slot, cover every point. Inf: any bearing.
         """
         if motion.is_identity:
-            return self.sees_grid
+            return 1.0
         shift = math.hypot(motion.tx, motion.ty)
-        if not shift < self._nearest_reach:
-            return True  # a point may pass the origin: any bearing
-        turn = abs(motion.angle) + math.asin(shift / self._nearest_reach)
-        margin = 1.0 + turn / abs(self.grid.angle_increment)
-        first, last = self._tile_span
-        return bool(_arc_pieces(first - margin, last + margin, self.grid)[0].size)
+        reach = self._nearest_reach * math.hypot(motion.cos, motion.sin)
+        if not shift < reach:
+            return math.inf  # a point may pass the origin (or the motion is not finite)
+        margin = 1.0 + (abs(motion.angle) + math.asin(shift / reach)) / abs(
+            self.grid.angle_increment
+        )
+        return margin if math.isfinite(margin) else math.inf
+
+    def _spans(self, margin: float) -> npt.NDArray[np.int64]:
+        """Per image row the columns [start, stop) the kernel reads: the tiles within
+        `margin` of the grid (`obstacle_kernel.row_spans`)."""
+        if margin != self._span_margin and self._kernel is not None:
+            self._kernel.row_spans(
+                self._tile_gap, margin, self._tile, self.camera.width, self._row_spans
+            )
+            self._span_margin = margin
+        return self._row_spans
+
+    def reaches(self, motion: PlanarMotion = IDENTITY_MOTION) -> bool:
+        """Whether a point of a frame, moved by `motion`, can land on this grid at all.
+
+        Some tile's arc, widened by `_margin(motion)`, meets the grid (`_tile_gaps`).
+        """
+        return self._least_gap <= self._margin(motion)
 
     def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
@@ -878,9 +928,8 @@ class ObstacleProjector:
                 angle_increment=grid.angle_increment,
                 range_min=self.range_min,
                 range_max=self.range_max,
-                ranges=to_rep117(
-                    np.full(grid.count, np.nan, dtype=np.float32), self.range_min, self.range_max
-                ),
+                # (to_rep117 leaves NaN as it is)
+                ranges=np.full(grid.count, np.nan, dtype=np.float32),
             )
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
