@@ -1,0 +1,185 @@
+"""Fragments of a revolution (issue 12) read only the part of the image that can land in them.
+
+A fragment's projector skips the image columns whose points cannot reach its grid; what it
+reports must not change for that. Its slots are slots of the whole turn's grid (same
+increment, same phase), so every slot must read as the whole turn's projector reads it, and
+as the numpy reference (which reads every pixel); its scan as the numpy-only projector's.
+Scenes are ray-cast as in test_obstacle.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.convert.obstacle import ObstacleProjector, _tile_gaps
+from scanfuse.motion import PlanarMotion
+from scanfuse.scan import AngleGrid
+from scanfuse.transforms import Extrinsics
+from tests.convert.test_obstacle import (
+    AHEAD_MOUNTING,
+    BOX_5CM,
+    CAMERA,
+    GRID,
+    INCREMENT,
+    LIMITS,
+    WALL_AHEAD,
+    render,
+)
+from tests.convert.test_obstacle_drops import DEFAULT_DROPS, as_millimetres, ledge_depth
+
+AHEAD = Extrinsics.from_mounting(**AHEAD_MOUNTING)
+# A box left of ahead (bearings 9-19 deg) and one right of it (-9 to -23 deg), 1.5-2.2 m away,
+# so both fragments the camera sees hold points, and walls behind them.
+BOX_LEFT = (1.8, 2.1, 0.3, 0.6, 0.0, 0.2)
+BOX_RIGHT = (1.5, 1.8, -0.6, -0.25, 0.0, 0.3)
+SCENE = (BOX_5CM, BOX_LEFT, BOX_RIGHT, WALL_AHEAD)
+TURN = PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05), tx=0.03, ty=-0.02)
+# Turned and moved (a robot at 1.5 rad/s and 1 m/s over 33 ms), driven back, drifted sideways:
+# the box ahead (bearings -7.6 to 7.6 deg at 1.5 m) shifts by 1.9 deg, across 0 deg.
+MOTIONS = [PlanarMotion(), TURN, PlanarMotion(tx=-0.1), PlanarMotion(ty=0.05)]
+
+
+def fragment(first_slot: int, count: int) -> AngleGrid:
+    """Slots first_slot, ... of GRID (-pi + k INCREMENT), as a grid of their own."""
+    return AngleGrid(-math.pi + first_slot * INCREMENT, INCREMENT, count)
+
+
+def make(grid, extrinsics=AHEAD, **changes) -> ObstacleProjector:
+    return ObstacleProjector(CAMERA, extrinsics, grid, **{**LIMITS, 'min_points': 3, **changes})
+
+
+def assert_fragment_reads_as_the_whole_turn(
+    part: ObstacleProjector, whole: ObstacleProjector, slots: np.ndarray, image: np.ndarray
+) -> None:
+    flat = image.ravel()
+    reference = make(part.grid, part.extrinsics, use_kernel=False, drops=part.drops)
+    for motion in MOTIONS:
+        whole_best = whole.nearest_squared(flat, motion=motion)[slots].copy()
+        whole_drops = whole.drop_slots[slots]
+        best = part.nearest_squared(flat, motion=motion).copy()
+        np.testing.assert_array_equal(best, whole_best)
+        np.testing.assert_array_equal(part.drop_slots, whole_drops)
+        np.testing.assert_array_equal(
+            part.nearest_squared(flat, reference=True, motion=motion), best
+        )
+        np.testing.assert_array_equal(
+            part.scan(image, motion).ranges, reference.scan(image, motion).ranges
+        )
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+@pytest.mark.parametrize('millimetres', [True, False])
+def test_partly_seen_fragments_read_as_the_whole_turn(threads, millimetres):
+    # CAMERA sees 31.4 deg either side of ahead: fragments [-60, 0) and [0, 60) deg (slots
+    # 240 and 360 on) each hold only their part of it, the rest of them is out of view.
+    image = render(CAMERA, AHEAD, SCENE, millimetres=millimetres)
+    whole = make(GRID, threads=threads)
+    for first in (240, 360):
+        part = make(fragment(first, 120), threads=threads)
+        assert 40 < part.in_view.sum() < 100
+        assert_fragment_reads_as_the_whole_turn(part, whole, np.arange(first, first + 120), image)
+    # Not vacuous: each fragment has finite readings (the boxes) where the camera sees it.
+    right, left = (make(fragment(first, 120)) for first in (240, 360))
+    assert np.isfinite(right.scan(image).ranges).sum() > 20
+    assert np.isfinite(left.scan(image).ranges).sum() > 20
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_partly_seen_fragments_read_as_the_whole_turn_with_drops(threads):
+    # A ledge 1.2 m ahead across the whole view (camera above the LiDAR): drop edges in both
+    # fragments, read through the kernel's drop pass.
+    extrinsics = Extrinsics.from_mounting(
+        camera_height=0.4, camera_pitch=math.radians(20.0), lidar_height=0.3
+    )
+    depth = ledge_depth(CAMERA, edge=1.2, drop=0.3)
+    depth[100:200, 200:440] = 1.0  # something standing in the slab too
+    whole = make(GRID, extrinsics, threads=threads, drops=DEFAULT_DROPS)
+    for image in (depth.astype(np.float32), as_millimetres(depth)):
+        for first in (240, 360):
+            part = make(fragment(first, 120), extrinsics, threads=threads, drops=DEFAULT_DROPS)
+            slots = np.arange(first, first + 120)
+            assert_fragment_reads_as_the_whole_turn(part, whole, slots, image)
+            part.nearest_squared(image.ravel())
+            assert part.drop_slots.sum() > 20
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_fragment_seen_only_at_its_edge(threads):
+    image = render(CAMERA, AHEAD, SCENE)
+    whole = make(GRID, threads=threads)
+    # The last slot the camera covers on the left (about 31 deg: slot 360 + 62), and a
+    # fragment starting five slots before it: it sees six slots, the rest of the image is
+    # out of its reach but for the columns at the image's left edge.
+    last = int(np.flatnonzero(whole.in_view)[-1])
+    assert 415 < last < 430
+    part = make(fragment(last - 5, 120), threads=threads)
+    assert part.in_view.sum() == 6
+    assert_fragment_reads_as_the_whole_turn(part, whole, np.arange(last - 5, last + 115), image)
+    # Not vacuous: the wall at 3.4 m (3 / cos 29 deg) reaches into its first slots.
+    assert np.isfinite(part.nearest_squared(image.ravel())[:6]).any()
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_fragment_across_the_seam_behind(threads):
+    # A camera looking backwards sees about 28 deg either side of pi from the LiDAR: the
+    # fragment [175, 235) deg (slots 710..719 and 0..109 of the turn) holds its first 72 slots.
+    extrinsics = Extrinsics.from_mounting(
+        camera_x=-0.2, camera_height=0.3, camera_yaw=math.pi, lidar_height=0.2
+    )
+    wall_behind = (-2.2, -2.0, -5.0, 5.0, 0.0, 2.0)
+    box_behind = (-1.8, -1.5, -0.5, -0.1, 0.0, 0.2)
+    image = render(CAMERA, extrinsics, [wall_behind, box_behind])
+    whole = make(GRID, extrinsics, threads=threads)
+    part = make(fragment(710, 120), extrinsics, threads=threads)
+    assert 60 < part.in_view.sum() < 80
+    slots = (710 + np.arange(120)) % 720
+    assert_fragment_reads_as_the_whole_turn(part, whole, slots, image)
+    assert np.isfinite(part.nearest_squared(image.ravel())).sum() > 30
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_fragment_inside_the_view_reads_as_the_whole_turn(threads):
+    # [-10, 10) deg, well inside the +-31 deg view: every slot in view.
+    image = render(CAMERA, AHEAD, SCENE)
+    whole = make(GRID, threads=threads)
+    part = make(fragment(340, 40), threads=threads)
+    assert part.in_view.all()
+    assert_fragment_reads_as_the_whole_turn(part, whole, np.arange(340, 380), image)
+
+
+def test_a_fragment_reads_only_its_side_of_the_image():
+    # The camera looks along the LiDAR's x axis from 0.1 m ahead of it, without roll or yaw:
+    # an image column right of the centre sees points of negative bearing, left of it of
+    # positive bearing. So the fragment [0, 60) deg reads the left half (with a margin of a
+    # slot and a tile) and [-60, 0) the right half, in every row that sees the slab.
+    left, right = make(fragment(360, 120)), make(fragment(240, 120))
+    width = CAMERA.width
+    for part, reads_left in ((left, True), (right, False)):
+        spans = part._spans(part._margin(PlanarMotion()))
+        sees = spans[:, 1] > spans[:, 0]
+        assert sees.sum() > 0.9 * CAMERA.height
+        if reads_left:
+            assert (spans[sees, 0] == 0).all()
+            assert (spans[sees, 1] < 0.55 * width).all()
+        else:
+            assert (spans[sees, 0] > 0.45 * width).all()
+            assert (spans[sees, 1] == width).all()
+    # Turned by 0.05 rad (8.6 slots) the right fragment's points move left: it reads more.
+    still = right._spans(1.0).copy()
+    turned = right._spans(right._margin(PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05))))
+    assert (turned[:, 0] <= still[:, 0]).all()
+    assert (turned[:, 0] < still[:, 0]).any()
+
+
+def test_tile_gaps_are_the_distance_around_the_turn():
+    # A grid of 10 slots at 0.5 deg: the turn is 720 slots; the grid is [0, 10).
+    grid = AngleGrid(0.0, INCREMENT, 10)
+    first = np.array([5.0, 12.0, 700.0, 715.0, -3.0, 1440.0 + 14.0, np.nan])
+    last = np.array([8.0, 13.0, 705.0, 725.0, -1.0, 1440.0 + 16.0, np.nan])
+    # inside; 2 past the end; 15 short of slot 0 one turn on (690 past the end); across
+    # slot 0; 1 short of slot 0 (-1 is 719); two turns on, 4 past the end; no arc.
+    expected = [0.0, 2.0, 15.0, 0.0, 1.0, 4.0, np.inf]
+    np.testing.assert_allclose(_tile_gaps(first, last, grid), expected, rtol=0, atol=1e-9)
