@@ -23,6 +23,7 @@ from tests.convert.test_obstacle import (
     BOX_5CM,
     CAMERA,
     GRID,
+    GRID_CLOCKWISE,
     INCREMENT,
     LIMITS,
     WALL_AHEAD,
@@ -31,15 +32,29 @@ from tests.convert.test_obstacle import (
 from tests.convert.test_obstacle_drops import DEFAULT_DROPS, as_millimetres, ledge_depth
 
 AHEAD = Extrinsics.from_mounting(**AHEAD_MOUNTING)
+# The camera above the LiDAR: each pixel sees along one bearing, so a tile's arc is as narrow
+# as its pixels, and a tile left out lies just beside the grid (a motion too small by a
+# slot would lose points).
+ABOVE = Extrinsics.from_mounting(
+    camera_height=0.4, camera_pitch=math.radians(20.0), lidar_height=0.2
+)
 # A box left of ahead (bearings 9-19 deg) and one right of it (-9 to -23 deg), 1.5-2.2 m away,
 # so both fragments the camera sees hold points, and walls behind them.
 BOX_LEFT = (1.8, 2.1, 0.3, 0.6, 0.0, 0.2)
 BOX_RIGHT = (1.5, 1.8, -0.6, -0.25, 0.0, 0.3)
 SCENE = (BOX_5CM, BOX_LEFT, BOX_RIGHT, WALL_AHEAD)
 TURN = PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05), tx=0.03, ty=-0.02)
-# Turned and moved (a robot at 1.5 rad/s and 1 m/s over 33 ms), driven back, drifted sideways:
-# the box ahead (bearings -7.6 to 7.6 deg at 1.5 m) shifts by 1.9 deg, across 0 deg.
-MOTIONS = [PlanarMotion(), TURN, PlanarMotion(tx=-0.1), PlanarMotion(ty=0.05)]
+# Turned both ways (a robot at 1.5 rad/s over 33 ms), turned and moved (and at 1 m/s),
+# driven back, drifted sideways (the box ahead, at bearings -7.6 to 7.6 deg 1.5 m away,
+# shifts by 1.9 deg, across 0 deg).
+MOTIONS = [
+    PlanarMotion(),
+    PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05)),
+    PlanarMotion(cos=math.cos(-0.05), sin=math.sin(-0.05)),
+    TURN,
+    PlanarMotion(tx=-0.1),
+    PlanarMotion(ty=0.05),
+]
 
 
 def fragment(first_slot: int, count: int) -> AngleGrid:
@@ -72,17 +87,18 @@ def assert_fragment_reads_as_the_whole_turn(
 
 @pytest.mark.parametrize('threads', [1, 2])
 @pytest.mark.parametrize('millimetres', [True, False])
-def test_partly_seen_fragments_read_as_the_whole_turn(threads, millimetres):
+@pytest.mark.parametrize('extrinsics', [AHEAD, ABOVE], ids=['ahead', 'above'])
+def test_partly_seen_fragments_read_as_the_whole_turn(threads, millimetres, extrinsics):
     # CAMERA sees 31.4 deg either side of ahead: fragments [-60, 0) and [0, 60) deg (slots
     # 240 and 360 on) each hold only their part of it, the rest of them is out of view.
-    image = render(CAMERA, AHEAD, SCENE, millimetres=millimetres)
-    whole = make(GRID, threads=threads)
+    image = render(CAMERA, extrinsics, SCENE, millimetres=millimetres)
+    whole = make(GRID, extrinsics, threads=threads)
     for first in (240, 360):
-        part = make(fragment(first, 120), threads=threads)
+        part = make(fragment(first, 120), extrinsics, threads=threads)
         assert 40 < part.in_view.sum() < 100
         assert_fragment_reads_as_the_whole_turn(part, whole, np.arange(first, first + 120), image)
     # Not vacuous: each fragment has finite readings (the boxes) where the camera sees it.
-    right, left = (make(fragment(first, 120)) for first in (240, 360))
+    right, left = (make(fragment(first, 120), extrinsics) for first in (240, 360))
     assert np.isfinite(right.scan(image).ranges).sum() > 20
     assert np.isfinite(left.scan(image).ranges).sum() > 20
 
@@ -104,6 +120,19 @@ def test_partly_seen_fragments_read_as_the_whole_turn_with_drops(threads):
             assert_fragment_reads_as_the_whole_turn(part, whole, slots, image)
             part.nearest_squared(image.ravel())
             assert part.drop_slots.sum() > 20
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_partly_seen_clockwise_fragment_reads_as_the_whole_turn(threads):
+    # Clockwise slot k is at pi - k INCREMENT: slots 330..449 are 15 deg down to -44.5 deg,
+    # the camera's view covers 15 deg down to about -38 deg of them (31.4 deg either side at
+    # the image's centre row, wider below it: those rays, pitched down, are nearer the
+    # vertical); the box on the left (9.5 to 18.4 deg) lies across the fragment's start.
+    image = render(CAMERA, ABOVE, SCENE)
+    whole = make(GRID_CLOCKWISE, ABOVE, threads=threads)
+    part = make(AngleGrid(math.pi - 330 * INCREMENT, -INCREMENT, 120), ABOVE, threads=threads)
+    assert 100 < part.in_view.sum() < 115
+    assert_fragment_reads_as_the_whole_turn(part, whole, np.arange(330, 450), image)
 
 
 @pytest.mark.parametrize('threads', [1, 2])
@@ -157,29 +186,37 @@ def test_a_fragment_reads_only_its_side_of_the_image():
     # slot and a tile) and [-60, 0) the right half, in every row that sees the slab.
     left, right = make(fragment(360, 120)), make(fragment(240, 120))
     width = CAMERA.width
+    spans = {}
     for part, reads_left in ((left, True), (right, False)):
-        spans = part._spans(part._margin(PlanarMotion()))
-        sees = spans[:, 1] > spans[:, 0]
+        spans[part] = still = part._spans(*part._margin(PlanarMotion())).copy()
+        sees = still[:, 1] > still[:, 0]
         assert sees.sum() > 0.9 * CAMERA.height
         if reads_left:
-            assert (spans[sees, 0] == 0).all()
-            assert (spans[sees, 1] < 0.55 * width).all()
+            assert (still[sees, 0] == 0).all()
+            assert (still[sees, 1] < 0.55 * width).all()
         else:
-            assert (spans[sees, 0] > 0.45 * width).all()
-            assert (spans[sees, 1] == width).all()
-    # Turned by 0.05 rad (8.6 slots) the right fragment's points move left: it reads more.
-    still = right._spans(1.0).copy()
-    turned = right._spans(right._margin(PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05))))
-    assert (turned[:, 0] <= still[:, 0]).all()
-    assert (turned[:, 0] < still[:, 0]).any()
+            assert (still[sees, 0] > 0.45 * width).all()
+            assert (still[sees, 1] == width).all()
+    # Turned by +0.05 rad (5.7 slots, counter-clockwise) the points just right of 0 deg turn
+    # into [0, 60): it reads further right; [-60, 0) loses them: it reads less.
+    turned = PlanarMotion(cos=math.cos(0.05), sin=math.sin(0.05))
+    assert left._margin(turned) == pytest.approx((0.05 / INCREMENT, 1.0))
+    wider = left._spans(*left._margin(turned))
+    assert (wider[:, 1] >= spans[left][:, 1]).all()
+    assert (wider[:, 1] > spans[left][:, 1]).sum() > 0.9 * CAMERA.height
+    narrower = right._spans(*right._margin(turned))
+    assert (narrower[:, 0] >= spans[right][:, 0]).all()
+    assert (narrower[:, 0] > spans[right][:, 0]).sum() > 0.9 * CAMERA.height
 
 
-def test_tile_gaps_are_the_distance_around_the_turn():
+def test_tile_gaps_are_the_distances_around_the_turn():
     # A grid of 10 slots at 0.5 deg: the turn is 720 slots; the grid is [0, 10).
     grid = AngleGrid(0.0, INCREMENT, 10)
     first = np.array([5.0, 12.0, 700.0, 715.0, -3.0, 1440.0 + 14.0, np.nan])
     last = np.array([8.0, 13.0, 705.0, 725.0, -1.0, 1440.0 + 16.0, np.nan])
-    # inside; 2 past the end; 15 short of slot 0 one turn on (690 past the end); across
-    # slot 0; 1 short of slot 0 (-1 is 719); two turns on, 4 past the end; no arc.
-    expected = [0.0, 2.0, 15.0, 0.0, 1.0, 4.0, np.inf]
-    np.testing.assert_allclose(_tile_gaps(first, last, grid), expected, rtol=0, atol=1e-9)
+    # Inside; 2 past the end, 707 short of slot 0 one turn on (720 - 13); 690 past, 15
+    # short; across slot 0 one turn on; -3 is 717: 707 past, 1 short (-1 is 719); two turns
+    # on, 4 past the end and 704 short; no arc.
+    after, before = _tile_gaps(first, last, grid)
+    np.testing.assert_allclose(after, [0, 2, 690, 0, 707, 4, np.inf], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(before, [0, 707, 15, 0, 1, 704, np.inf], rtol=0, atol=1e-9)

@@ -493,22 +493,26 @@ def _arc_pieces(
     return piece_owner[used], first_slot[used], last_slot[used] + 1
 
 
-def _tile_gaps(first: F64, last: F64, grid: AngleGrid) -> F64:
-    """Per tile arc [first, last] (slot coordinates) its distance in slots to the grid.
+def _tile_gaps(first: F64, last: F64, grid: AngleGrid) -> tuple[F64, F64]:
+    """Per tile arc [first, last] (slot coordinates) how far it lies past the grid's end and
+    before its start, in slots: (after, before); 0 for an arc that meets the grid.
 
-    The arc widened by m slots each way meets the grid's slots [0, count) (modulo the turn)
-    when m >= the gap, as `_arc_pieces` of the widened arc would find a piece (up to
-    rounding at equality): 0 for an arc that meets the grid, else the shorter of the way
-    back from its start to the grid's end and on from its end to the grid's start (slot 0
-    one turn on). Inf for a tile without an arc (NaN).
+    Around the turn an arc that misses the grid's slots [0, count) lies in the gap between
+    the grid's end and its start one turn on: `after` slots past the end, `before` slots
+    short of the start. Turned by d slots (d > 0 in the grid's direction) and widened by m
+    slots each way it can meet the grid only when after + d <= m or before - d <= m (it
+    reaches back to the end, or on to the start); a meeting arc (both 0) always passes.
+    That is `_arc_pieces` of the moved arc finding a piece, up to rounding at equality.
+    Inf for a tile without an arc (NaN).
     """
     turn = TWO_PI / abs(grid.angle_increment)
     known = ~np.isnan(first)
     start = np.mod(np.where(known, first, 0.0), turn)
     end = start + np.where(known, last - first, 0.0)
-    gap = np.maximum(np.minimum(start - grid.count, turn - end), 0.0)
-    tile_gap: F64 = np.where(known, gap, np.inf)
-    return tile_gap
+    misses = (start >= grid.count) & (end < turn)
+    after: F64 = np.where(known, np.where(misses, start - grid.count, 0.0), np.inf)
+    before: F64 = np.where(known, np.where(misses, turn - end, 0.0), np.inf)
+    return after, before
 
 
 def _runs_to_mask(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], count: int) -> Mask:
@@ -726,13 +730,14 @@ class ObstacleProjector:
         # Per tile the same test leaves out of the pass the tiles that cannot reach the grid
         # (`_spans`), so a fragment the camera sees in part reads only that part.
         tiles_shape = (-(-shape[0] // tile), -(-shape[1] // tile))
-        self._tile_gap = _tile_gaps(tile_first, tile_last, lidar_grid).reshape(tiles_shape)
-        self._least_gap = float(self._tile_gap.min(initial=math.inf))
+        after, before = _tile_gaps(tile_first, tile_last, lidar_grid)
+        self._tile_gaps = (after.reshape(tiles_shape), before.reshape(tiles_shape))
+        self._least_gap = float(np.minimum(after, before).min(initial=math.inf))
         self.sees_grid = self._least_gap <= 1.0
         self._nearest_reach = nearest_reach
         self._tile = tile
-        # The last margin's row spans (`_spans`): a frame without motion reuses them.
-        self._span_margin = math.nan
+        # The last (turn, margin)'s row spans (`_spans`): a frame without motion reuses them.
+        self._span_key = (math.nan, math.nan)
         self._row_spans = np.zeros((shape[0], 2), dtype=np.int64)
         self.frames_converted = 0  # frames whose pixels went through the kernel or numpy
 
@@ -845,7 +850,7 @@ class ObstacleProjector:
         depth = np.ascontiguousarray(depth)
         slots = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
         extremes = (*self._block_extremes[depth.dtype], self.drops is not None)
-        spans = self._spans(self._margin(motion))
+        spans = self._spans(*self._margin(motion))
         if self.threads == 1:
             kernel.nearest_squared(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
@@ -862,41 +867,47 @@ class ObstacleProjector:
             self._nearest[:] = self._part_nearest[0]
         return self._best
 
-    def _margin(self, motion: PlanarMotion) -> float:
-        """Slots by which a pixel's point, moved by `motion`, may land beyond its tile's arc.
+    def _margin(self, motion: PlanarMotion) -> tuple[float, float]:
+        """How a pixel's point, moved by `motion`, may land beside its tile's arc: (turn,
+        margin) in slots, the arc turned by `turn` and widened by `margin` each way.
 
-        The motion turns every bearing by its angle and then shifts a point at r metres by at
-        most asin(|t| / r) (t: its translation), r at least the nearest reach of any pixel's
-        slab segment (times the motion's scale, 1 for a rotation): the arcs widened by that,
-        plus one slot, cover every point. Inf: any bearing.
+        The motion turns every bearing by its angle (angle / angle_increment slots) and then
+        shifts a point at r metres by at most asin(|t| / r) (t: its translation), r at least
+        the nearest reach of any pixel's slab segment (times the motion's scale, 1 for a
+        rotation): the arcs so moved and widened, plus one slot, cover every point. An
+        infinite margin: any bearing.
         """
         if motion.is_identity:
-            return 1.0
+            return 0.0, 1.0
         shift = math.hypot(motion.tx, motion.ty)
         reach = self._nearest_reach * math.hypot(motion.cos, motion.sin)
         if not shift < reach:
-            return math.inf  # a point may pass the origin (or the motion is not finite)
-        margin = 1.0 + (abs(motion.angle) + math.asin(shift / reach)) / abs(
-            self.grid.angle_increment
-        )
-        return margin if math.isfinite(margin) else math.inf
+            return 0.0, math.inf  # a point may pass the origin (or the motion is not finite)
+        turn = motion.angle / self.grid.angle_increment
+        margin = 1.0 + math.asin(shift / reach) / abs(self.grid.angle_increment)
+        if not math.isfinite(turn + margin):
+            return 0.0, math.inf
+        return turn, margin
 
-    def _spans(self, margin: float) -> npt.NDArray[np.int64]:
-        """Per image row the columns [start, stop) the kernel reads: the tiles within
-        `margin` of the grid (`obstacle_kernel.row_spans`)."""
-        if margin != self._span_margin and self._kernel is not None:
+    def _spans(self, turn: float, margin: float) -> npt.NDArray[np.int64]:
+        """Per image row the columns [start, stop) the kernel reads: the tiles whose arcs,
+        turned by `turn` and widened by `margin` slots, meet the grid
+        (`obstacle_kernel.row_spans`)."""
+        if (turn, margin) != self._span_key and self._kernel is not None:
             self._kernel.row_spans(
-                self._tile_gap, margin, self._tile, self.camera.width, self._row_spans
+                *self._tile_gaps, turn, margin, self._tile, self.camera.width, self._row_spans
             )
-            self._span_margin = margin
+            self._span_key = (turn, margin)
         return self._row_spans
 
     def reaches(self, motion: PlanarMotion = IDENTITY_MOTION) -> bool:
         """Whether a point of a frame, moved by `motion`, can land on this grid at all.
 
-        Some tile's arc, widened by `_margin(motion)`, meets the grid (`_tile_gaps`).
+        Some tile's arc, moved as `_margin(motion)` says, may meet the grid (`_tile_gaps`:
+        within the margin plus the turn either way, one test for all tiles).
         """
-        return self._least_gap <= self._margin(motion)
+        turn, margin = self._margin(motion)
+        return self._least_gap <= margin + abs(turn)
 
     def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).

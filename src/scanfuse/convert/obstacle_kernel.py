@@ -491,29 +491,33 @@ def _seen_slots(
         seen[s] = running > 0
 
 
-def _row_spans(gap: Any, margin: float, tile: int, width: int, spans: Any) -> None:
-    """Per image row the columns [start, stop) of the tiles (tile x tile pixels, `gap`: tile
-    rows x tile columns) whose gap is at most `margin`, and what lies between them.
+def _row_spans(
+    after: Any, before: Any, turn: float, margin: float, tile: int, width: int, spans: Any
+) -> None:
+    """Per image row the columns [start, stop) of the tiles (tile x tile pixels; `after`,
+    `before`: tile rows x tile columns) whose arcs may meet the grid, and what lies between.
 
-    `gap` is each tile's distance in slots from its arc to the grid (`ObstacleProjector`),
-    `margin` how far a point can land beyond its tile's arc: the other tiles' points cannot
-    reach the grid. An empty span (start = stop = 0) where no tile of the row is left.
+    `after`, `before` are each tile's slots past the grid's end and short of its start
+    (`obstacle._tile_gaps`); the frame's motion turns the arcs by `turn` slots and widens
+    them by `margin`: a tile with after + turn > margin and before - turn > margin holds no
+    point of the grid. An empty span (start = stop = 0) where no tile of the row is left.
     """
-    tiles_down, tiles_across = gap.shape
+    tiles_down = min(after.shape[0], before.shape[0])
+    tiles_across = min(after.shape[1], before.shape[1])
     for row in range(spans.shape[0]):
         spans[row, 0] = 0
         spans[row, 1] = 0
     for down in range(tiles_down):
         first = tiles_across
         for across in range(tiles_across):
-            if gap[down, across] <= margin:
+            if min(after[down, across] + turn, before[down, across] - turn) <= margin:
                 first = across
                 break
         if first == tiles_across:
             continue
         last = first
         for across in range(tiles_across - 1, first, -1):
-            if gap[down, across] <= margin:
+            if min(after[down, across] + turn, before[down, across] - turn) <= margin:
                 last = across
                 break
         start = min(first * tile, width)
