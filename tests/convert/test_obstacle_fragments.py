@@ -220,3 +220,14 @@ def test_tile_gaps_are_the_distances_around_the_turn():
     after, before = _tile_gaps(first, last, grid)
     np.testing.assert_allclose(after, [0, 2, 690, 0, 707, 4, np.inf], rtol=0, atol=1e-9)
     np.testing.assert_allclose(before, [0, 707, 15, 0, 1, 704, np.inf], rtol=0, atol=1e-9)
+
+
+def test_two_threads_share_the_columns_a_fragment_reads():
+    # [-60, 0) deg reads the right half of the image (above): its two threads split that
+    # half, near three quarters of the width, not the image at its middle (where one thread
+    # would get nothing to do). The whole turn's split stays at the middle.
+    width = CAMERA.width
+    right = make(fragment(240, 120), threads=2)
+    assert 0.7 * width < right._bands[1, 0] < 0.8 * width
+    assert (right._bands[0, 0], right._bands[1, 1]) == (0, width)
+    assert make(GRID, threads=2)._bands[1, 0] == width // 2

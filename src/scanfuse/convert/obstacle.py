@@ -752,7 +752,16 @@ class ObstacleProjector:
         # `_row_typical`; rows that cannot see the slab go last.
         self._rows = np.argsort(typical, kind='stable')
         block = self._kernel.BLOCK if self._kernel is not None else camera.width
-        self._bands = _column_bands(camera.width, self.threads, block)
+        # Threads split the columns this grid's points can come from (a fragment of a turn:
+        # its side of the image), not the whole width: each gets a like share of the work.
+        still = self._spans(0.0, 1.0) if self._kernel is not None else np.zeros((1, 2), np.int64)
+        reads = still[:, 1] > still[:, 0]
+        columns = (
+            (int(still[reads, 0].min()), int(still[reads, 1].max()))
+            if reads.any()
+            else (0, camera.width)
+        )
+        self._bands = _column_bands(camera.width, self.threads, block, columns)
         self._block_extremes = {
             np.dtype(tables[0].dtype): (
                 *_block_extremes(tables[0], tables[1], shape, self._bands, block),
@@ -980,13 +989,19 @@ def _row_typical(lo: F64, hi: F64) -> F64:
     return typical
 
 
-def _column_bands(width: int, parts: int, block: int) -> npt.NDArray[np.int64]:
-    """`parts` bands of image columns, as equal as can be: rows [start, stop, first block].
+def _column_bands(
+    width: int, parts: int, block: int, columns: tuple[int, int] | None = None
+) -> npt.NDArray[np.int64]:
+    """`parts` bands of image columns: rows [start, stop, first block].
 
+    The bands cut `columns` [start, stop) (default: all) as equally as can be; the first
+    and the last band reach on to the image's edges, so together they hold every column.
     The kernel cuts each band into blocks of `block` columns from its start; the first
     block is the index of the band's first block among the row's blocks.
     """
-    edges = np.linspace(0, width, parts + 1).round().astype(np.int64)
+    start, stop = (0, width) if columns is None else columns
+    edges = np.linspace(start, stop, parts + 1).round().astype(np.int64)
+    edges[0], edges[-1] = 0, width
     blocks = -(-(edges[1:] - edges[:-1]) // block)
     first = np.concatenate([[0], np.cumsum(blocks)[:-1]])
     bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:], first], axis=1)
