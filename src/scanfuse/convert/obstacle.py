@@ -493,6 +493,28 @@ def _arc_pieces(
     return piece_owner[used], first_slot[used], last_slot[used] + 1
 
 
+def _tile_gaps(first: F64, last: F64, grid: AngleGrid) -> tuple[F64, F64]:
+    """Per tile arc [first, last] (slot coordinates) how far it lies past the grid's end and
+    before its start, in slots: (after, before); 0 for an arc that meets the grid.
+
+    Around the turn an arc that misses the grid's slots [0, count) lies in the gap between
+    the grid's end and its start one turn on: `after` slots past the end, `before` slots
+    short of the start. Turned by d slots (d > 0 in the grid's direction) and widened by m
+    slots each way it can meet the grid only when after + d <= m or before - d <= m (it
+    reaches back to the end, or on to the start); a meeting arc (both 0) always passes.
+    That is `_arc_pieces` of the moved arc finding a piece, up to rounding at equality.
+    Inf for a tile without an arc (NaN).
+    """
+    turn = TWO_PI / abs(grid.angle_increment)
+    known = ~np.isnan(first)
+    start = np.mod(np.where(known, first, 0.0), turn)
+    end = start + np.where(known, last - first, 0.0)
+    misses = (start >= grid.count) & (end < turn)
+    after: F64 = np.where(known, np.where(misses, start - grid.count, 0.0), np.inf)
+    before: F64 = np.where(known, np.where(misses, turn - end, 0.0), np.inf)
+    return after, before
+
+
 def _runs_to_mask(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], count: int) -> Mask:
     """Slots inside any run [start, end): +1 where a run starts, -1 where it ends, summed."""
     marks = np.bincount(starts, minlength=count + 1) - np.bincount(ends, minlength=count + 1)
@@ -695,14 +717,28 @@ class ObstacleProjector:
         tile_last = np.concatenate([arcs[1] for arcs in tile_arcs])
         self.coverage = ViewCoverage.from_tile_arcs(tile_first, tile_last, shape, lidar_grid, tile)
         self.in_view = self.coverage.in_view
+        # The centre pixel (flat index) of each run's tile, for the compiled `_seen`.
+        across = self.coverage.columns.size
+        self._run_centres = (
+            self.coverage.rows[self.coverage.owner // across] * shape[1]
+            + self.coverage.columns[self.coverage.owner % across]
+        ).astype(np.int64)
         # Whether a point can land on this grid at all: the tiles' arcs widened by one slot
         # each way (the kernel's float32 points against these float64 arcs differ by far
         # less). A fragment of a revolution the camera cannot see (issue 12: 6 messages per
         # turn, each fused on its own) then costs no pass over the image: its scan is NaN.
-        widened = _arc_pieces(tile_first - 1.0, tile_last + 1.0, lidar_grid)[0]
-        self.sees_grid = bool(widened.size)
-        self._tile_span = (tile_first, tile_last)
+        # Per tile the same test leaves out of the pass the tiles that cannot reach the grid
+        # (`_spans`), so a fragment the camera sees in part reads only that part.
+        tiles_shape = (-(-shape[0] // tile), -(-shape[1] // tile))
+        after, before = _tile_gaps(tile_first, tile_last, lidar_grid)
+        self._tile_gaps = (after.reshape(tiles_shape), before.reshape(tiles_shape))
+        self._least_gap = float(np.minimum(after, before).min(initial=math.inf))
+        self.sees_grid = self._least_gap <= 1.0
         self._nearest_reach = nearest_reach
+        self._tile = tile
+        # The last (turn, margin)'s row spans (`_spans`): a frame without motion reuses them.
+        self._span_key = (math.nan, math.nan)
+        self._row_spans = np.zeros((shape[0], 2), dtype=np.int64)
         self.frames_converted = 0  # frames whose pixels went through the kernel or numpy
 
         self._best = np.empty(lidar_grid.count, dtype=np.float32)
@@ -716,7 +752,16 @@ class ObstacleProjector:
         # `_row_typical`; rows that cannot see the slab go last.
         self._rows = np.argsort(typical, kind='stable')
         block = self._kernel.BLOCK if self._kernel is not None else camera.width
-        self._bands = _column_bands(camera.width, self.threads, block)
+        # Threads split the columns this grid's points can come from (a fragment of a turn:
+        # its side of the image), not the whole width: each gets a like share of the work.
+        still = self._spans(0.0, 1.0) if self._kernel is not None else np.zeros((1, 2), np.int64)
+        reads = still[:, 1] > still[:, 0]
+        columns = (
+            (int(still[reads, 0].min()), int(still[reads, 1].max()))
+            if reads.any()
+            else (0, camera.width)
+        )
+        self._bands = _column_bands(camera.width, self.threads, block, columns)
         self._block_extremes = {
             np.dtype(tables[0].dtype): (
                 *_block_extremes(tables[0], tables[1], shape, self._bands, block),
@@ -740,9 +785,8 @@ class ObstacleProjector:
             low, high = np.float32(self.range_min), np.float32(self.range_max)
         seen = np.empty(self.grid.count, dtype=np.bool_)
         self._kernel.seen_slots(
-            depth, coverage.rows, coverage.columns, low, high, coverage.owner, coverage.starts,
-            coverage.ends, seen,
-        )  # fmt: skip
+            depth.ravel(), self._run_centres, low, high, coverage.starts, coverage.ends, seen
+        )
         return seen
 
     def _valid_centres(self, depth: npt.NDArray[Any]) -> Mask:
@@ -815,38 +859,64 @@ class ObstacleProjector:
         depth = np.ascontiguousarray(depth)
         slots = (lookup.scale, lookup.first, lookup.second, lookup.before, lookup.middle)
         extremes = (*self._block_extremes[depth.dtype], self.drops is not None)
+        spans = self._spans(*self._margin(motion))
         if self.threads == 1:
             kernel.nearest_squared(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
-                self.camera.width, *extremes, *slots, lookup.after, self.cluster_spread,
+                self.camera.width, spans, *extremes, *slots, lookup.after, self.cluster_spread,
                 self._nearest, self._bound[0], self._best, self._drop_slots,
             )  # fmt: skip
         else:
             kernel.nearest_squared_parallel(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, *moved, self._rows,
-                self.camera.width, self._bands, *extremes, *slots, lookup.after,
+                self.camera.width, spans, self._bands, *extremes, *slots, lookup.after,
                 self.cluster_spread, self._part_nearest, self._bound, self._best,
                 self._drop_slots,
             )  # fmt: skip
             self._nearest[:] = self._part_nearest[0]
         return self._best
 
+    def _margin(self, motion: PlanarMotion) -> tuple[float, float]:
+        """How a pixel's point, moved by `motion`, may land beside its tile's arc: (turn,
+        margin) in slots, the arc turned by `turn` and widened by `margin` each way.
+
+        The motion turns every bearing by its angle (angle / angle_increment slots) and then
+        shifts a point at r metres by at most asin(|t| / r) (t: its translation), r at least
+        the nearest reach of any pixel's slab segment (times the motion's scale, 1 for a
+        rotation): the arcs so moved and widened, plus one slot, cover every point. An
+        infinite margin: any bearing.
+        """
+        if motion.is_identity:
+            return 0.0, 1.0
+        shift = math.hypot(motion.tx, motion.ty)
+        reach = self._nearest_reach * math.hypot(motion.cos, motion.sin)
+        if not shift < reach:
+            return 0.0, math.inf  # a point may pass the origin (or the motion is not finite)
+        turn = motion.angle / self.grid.angle_increment
+        margin = 1.0 + math.asin(shift / reach) / abs(self.grid.angle_increment)
+        if not math.isfinite(turn + margin):
+            return 0.0, math.inf
+        return turn, margin
+
+    def _spans(self, turn: float, margin: float) -> npt.NDArray[np.int64]:
+        """Per image row the columns [start, stop) the kernel reads: the tiles whose arcs,
+        turned by `turn` and widened by `margin` slots, meet the grid
+        (`obstacle_kernel.row_spans`)."""
+        if (turn, margin) != self._span_key and self._kernel is not None:
+            self._kernel.row_spans(
+                *self._tile_gaps, turn, margin, self._tile, self.camera.width, self._row_spans
+            )
+            self._span_key = (turn, margin)
+        return self._row_spans
+
     def reaches(self, motion: PlanarMotion = IDENTITY_MOTION) -> bool:
         """Whether a point of a frame, moved by `motion`, can land on this grid at all.
 
-        The motion turns every bearing by its angle and then shifts a point at r metres by at
-        most asin(|t| / r) (t: its translation), r at least the nearest reach of any pixel's
-        slab segment: the tiles' arcs widened by that, plus one slot, cover every point.
+        Some tile's arc, moved as `_margin(motion)` says, may meet the grid (`_tile_gaps`:
+        within the margin plus the turn either way, one test for all tiles).
         """
-        if motion.is_identity:
-            return self.sees_grid
-        shift = math.hypot(motion.tx, motion.ty)
-        if not shift < self._nearest_reach:
-            return True  # a point may pass the origin: any bearing
-        turn = abs(motion.angle) + math.asin(shift / self._nearest_reach)
-        margin = 1.0 + turn / abs(self.grid.angle_increment)
-        first, last = self._tile_span
-        return bool(_arc_pieces(first - margin, last + margin, self.grid)[0].size)
+        turn, margin = self._margin(motion)
+        return self._least_gap <= margin + abs(turn)
 
     def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
@@ -878,9 +948,8 @@ class ObstacleProjector:
                 angle_increment=grid.angle_increment,
                 range_min=self.range_min,
                 range_max=self.range_max,
-                ranges=to_rep117(
-                    np.full(grid.count, np.nan, dtype=np.float32), self.range_min, self.range_max
-                ),
+                # (to_rep117 leaves NaN as it is)
+                ranges=np.full(grid.count, np.nan, dtype=np.float32),
             )
         if depth.dtype != np.uint16:
             depth = depth.astype(np.float32, copy=False)
@@ -920,13 +989,19 @@ def _row_typical(lo: F64, hi: F64) -> F64:
     return typical
 
 
-def _column_bands(width: int, parts: int, block: int) -> npt.NDArray[np.int64]:
-    """`parts` bands of image columns, as equal as can be: rows [start, stop, first block].
+def _column_bands(
+    width: int, parts: int, block: int, columns: tuple[int, int] | None = None
+) -> npt.NDArray[np.int64]:
+    """`parts` bands of image columns: rows [start, stop, first block].
 
+    The bands cut `columns` [start, stop) (default: all) as equally as can be; the first
+    and the last band reach on to the image's edges, so together they hold every column.
     The kernel cuts each band into blocks of `block` columns from its start; the first
     block is the index of the band's first block among the row's blocks.
     """
-    edges = np.linspace(0, width, parts + 1).round().astype(np.int64)
+    start, stop = (0, width) if columns is None else columns
+    edges = np.linspace(start, stop, parts + 1).round().astype(np.int64)
+    edges[0], edges[-1] = 0, width
     blocks = -(-(edges[1:] - edges[:-1]) // block)
     first = np.concatenate([[0], np.cumsum(blocks)[:-1]])
     bands: npt.NDArray[np.int64] = np.stack([edges[:-1], edges[1:], first], axis=1)

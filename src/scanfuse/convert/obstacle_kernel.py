@@ -19,6 +19,10 @@ What differs is only which points are looked at, and in which order:
 - Rows go in an order the projector chose (nearest typical range first), so the k nearest
   fill early with near points and the bounds tighten sooner. The k smallest of a set do
   not depend on the order in which it is visited, so neither does the output.
+- Each row is read only over its span of columns (`row_spans`): the tiles whose points,
+  moved by the frame's motion, can land on the grid. A fragment of a revolution (issue 12:
+  a PSENscan's six 60-degree messages, each fused on its own) thus reads only the part
+  of the image that can land in it; a pixel left out holds no point of any slot.
 - `nearest_squared_parallel` splits the columns into bands, one per thread, each with its
   own k nearest, and merges them per slot (k smallest of the parts' k smallest).
 - Drop-offs (the module docstring of `obstacle`): a pixel whose depth lies in its drop
@@ -92,6 +96,7 @@ def _accumulate(
     rows: Any,
     width: int,
     columns: Any,
+    spans: Any,
     block_lo: Any,
     block_hi: Any,
     block_drop_lo: Any,
@@ -106,7 +111,8 @@ def _accumulate(
     bound: Any,
 ) -> None:
     """Insert the kept points of `rows` (image row indices, in this order), columns
-    [columns[0], columns[1]) of each, into `nearest`.
+    [columns[0], columns[1]) of each within the row's span [spans[row, 0], spans[row, 1]),
+    into `nearest`.
 
     The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
     each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
@@ -135,15 +141,24 @@ def _accumulate(
     column_start = max(columns[0], 0)
     column_stop = min(columns[1], width)
     block_rows = min(block_lo.shape[0], block_hi.shape[0], block_drop_lo.shape[0])
+    block_rows = min(block_rows, spans.shape[0])
     blocks = min(block_lo.shape[1], block_hi.shape[1], block_drop_lo.shape[1])
     for row in rows:
-        row_start = row * width + column_start
-        row_stop = row * width + column_stop
-        if not (0 <= row < block_rows and row_start < row_stop <= size):
+        if not 0 <= row < block_rows:
             continue
-        block = columns[2]
-        for start in range(row_start, row_stop, BLOCK):
-            stop = min(start + BLOCK, row_stop)
+        # Only the row's span of columns whose points can land on the grid (`row_spans`).
+        span_start = max(column_start, spans[row, 0])
+        row_start = row * width + span_start
+        row_stop = row * width + min(column_stop, spans[row, 1])
+        if not row_start < row_stop <= size:
+            continue
+        # The blocks stay where `block_lo` has them: from the one holding the span's start,
+        # each cut to the span (its extremes still bound the pixels left).
+        skipped = (span_start - column_start) // BLOCK
+        block = columns[2] + skipped
+        for block_start in range(row * width + column_start + skipped * BLOCK, row_stop, BLOCK):
+            start = max(block_start, row_start)
+            stop = min(block_start + BLOCK, row_stop)
             if not 0 <= block < blocks:
                 break
             least, greatest = block_lo[row, block], block_hi[row, block]
@@ -291,6 +306,7 @@ def _accumulate_plain(
     rows: Any,
     width: int,
     columns: Any,
+    spans: Any,
     block_lo: Any,
     block_hi: Any,
     scale: float,
@@ -306,7 +322,8 @@ def _accumulate_plain(
     loops beside the drops' in one function ran 10 % slower).
 
     Insert the kept points of `rows` (image row indices, in this order), columns
-    [columns[0], columns[1]) of each, into `nearest`.
+    [columns[0], columns[1]) of each within the row's span [spans[row, 0], spans[row, 1]),
+    into `nearest`.
 
     The band's blocks (BLOCK pixels from columns[0] on) are blocks columns[2], ... of
     each row in `block_lo`, `block_hi` (rows x blocks): the least lo and greatest hi of
@@ -328,14 +345,20 @@ def _accumulate_plain(
     column_start = max(columns[0], 0)
     column_stop = min(columns[1], width)
     block_rows, blocks = block_lo.shape
+    block_rows = min(block_rows, spans.shape[0])
     for row in rows:
-        row_start = row * width + column_start
-        row_stop = row * width + column_stop
-        if not (0 <= row < block_rows and row_start < row_stop <= size):
+        if not 0 <= row < block_rows:
             continue
-        block = columns[2]
-        for start in range(row_start, row_stop, BLOCK):
-            stop = min(start + BLOCK, row_stop)
+        span_start = max(column_start, spans[row, 0])
+        row_start = row * width + span_start
+        row_stop = row * width + min(column_stop, spans[row, 1])
+        if not row_start < row_stop <= size:
+            continue
+        skipped = (span_start - column_start) // BLOCK
+        block = columns[2] + skipped
+        for block_start in range(row * width + column_start + skipped * BLOCK, row_stop, BLOCK):
+            start = max(block_start, row_start)
+            stop = min(block_start + BLOCK, row_stop)
             if not 0 <= block < blocks:
                 break
             least, greatest = block_lo[row, block], block_hi[row, block]
@@ -436,35 +459,28 @@ def _merge(into: Any, other: Any) -> None:
 
 def _seen_slots(
     depth: Any,
-    rows: Any,
-    columns: Any,
+    centres: Any,
     low: Any,
     high: Any,
-    owner: Any,
     starts: Any,
     ends: Any,
     seen: Any,
 ) -> None:
-    """`ViewCoverage.seen` of the tiles whose centre pixel (rows x columns) is in [low, high].
+    """`ViewCoverage.seen` of the tiles whose centre pixel is in [low, high].
 
-    `seen` gets the slots inside a run [start, end) of a tile with a valid centre.
+    `depth` is the flattened image, `centres` the centre pixel (flat index) of each run's
+    tile: `seen` gets the slots inside a run [start, end) of a tile with a valid centre.
+    Only the centres of tiles with a run are read: on a fragment of a revolution, those of
+    the part of the image that covers it.
     """
     count = seen.size
-    height, width = depth.shape
-    valid = np.zeros(rows.size * columns.size, np.bool_)
-    for r in range(rows.size):
-        row = rows[r]
-        if not 0 <= row < height:
-            continue
-        for c in range(columns.size):
-            column = columns[c]
-            if 0 <= column < width:
-                z = depth[row, column]
-                valid[r * columns.size + c] = (z >= low) & (z <= high)
     marks = np.zeros(count + 1, np.int64)
-    for piece in range(min(owner.size, starts.size, ends.size)):
-        tile = owner[piece]
-        if 0 <= tile < valid.size and valid[tile]:
+    for piece in range(min(centres.size, starts.size, ends.size)):
+        centre = centres[piece]
+        if not 0 <= centre < depth.size:
+            continue
+        z = depth[centre]
+        if (z >= low) & (z <= high):
             start, end = starts[piece], ends[piece]
             if 0 <= start <= count and 0 <= end <= count:
                 marks[start] += 1
@@ -475,6 +491,43 @@ def _seen_slots(
         seen[s] = running > 0
 
 
+def _row_spans(
+    after: Any, before: Any, turn: float, margin: float, tile: int, width: int, spans: Any
+) -> None:
+    """Per image row the columns [start, stop) of the tiles (tile x tile pixels; `after`,
+    `before`: tile rows x tile columns) whose arcs may meet the grid, and what lies between.
+
+    `after`, `before` are each tile's slots past the grid's end and short of its start
+    (`obstacle._tile_gaps`); the frame's motion turns the arcs by `turn` slots and widens
+    them by `margin`: a tile with after + turn > margin and before - turn > margin holds no
+    point of the grid. An empty span (start = stop = 0) where no tile of the row is left.
+    """
+    tiles_down = min(after.shape[0], before.shape[0])
+    tiles_across = min(after.shape[1], before.shape[1])
+    for row in range(spans.shape[0]):
+        spans[row, 0] = 0
+        spans[row, 1] = 0
+    for down in range(tiles_down):
+        first = tiles_across
+        for across in range(tiles_across):
+            if min(after[down, across] + turn, before[down, across] - turn) <= margin:
+                first = across
+                break
+        if first == tiles_across:
+            continue
+        last = first
+        for across in range(tiles_across - 1, first, -1):
+            if min(after[down, across] + turn, before[down, across] - turn) <= margin:
+                last = across
+                break
+        start = min(first * tile, width)
+        stop = min((last + 1) * tile, width)
+        for row in range(down * tile, min((down + 1) * tile, spans.shape[0])):
+            spans[row, 0] = start
+            spans[row, 1] = stop
+
+
+row_spans = compiled(_row_spans)
 seen_slots = compiled(_seen_slots)
 pick = compiled(_pick)
 accumulate = compiled(_accumulate)
@@ -500,6 +553,7 @@ def _nearest_squared(
     m_ty: np.float32,
     rows: Any,
     width: int,
+    spans: Any,
     block_lo: Any,
     block_hi: Any,
     block_drop_lo: Any,
@@ -517,19 +571,21 @@ def _nearest_squared(
     drops: Any,
 ) -> None:
     """One thread: fill `nearest` (2 slots x k), `best` (the reported squared range) and
-    `drops` (the slots whose range is a drop's edge)."""
+    `drops` (the slots whose range is a drop's edge) from each row's span of columns
+    (`spans`, rows x 2: [start, stop), `row_spans`)."""
     reset(nearest, bound, before, middle, after)
     every = np.array([0, width, 0])
     if with_drops:
         accumulate(
             depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx, m_ty,
-            rows, width, every, block_lo, block_hi, block_drop_lo, with_drops, scale, first,
-            second, before, middle, after, nearest, bound,
+            rows, width, every, spans, block_lo, block_hi, block_drop_lo, with_drops, scale,
+            first, second, before, middle, after, nearest, bound,
         )  # fmt: skip
     else:
         accumulate_plain(
             depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width, every,
-            block_lo, block_hi, scale, first, second, before, middle, after, nearest, bound,
+            spans, block_lo, block_hi, scale, first, second, before, middle, after, nearest,
+            bound,
         )  # fmt: skip
     pick(nearest, spread, best, drops)
 
@@ -551,6 +607,7 @@ def _nearest_squared_parallel(
     m_ty: np.float32,
     rows: Any,
     width: int,
+    spans: Any,
     parts: Any,
     block_lo: Any,
     block_hi: Any,
@@ -568,8 +625,8 @@ def _nearest_squared_parallel(
     best: Any,
     drops: Any,
 ) -> None:
-    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row on thread p
-    (their blocks from parts[p, 2] on).
+    """`nearest_squared` with columns [parts[p, 0], parts[p, 1]) of every row (within its
+    span) on thread p (their blocks from parts[p, 2] on).
 
     Columns, not rows: a column band sees its own range of directions, hence mostly its
     own slots, so the parts do not each insert the same slots' points (as row bands
@@ -581,14 +638,14 @@ def _nearest_squared_parallel(
         if with_drops:
             accumulate(
                 depth, lo, hi, a_x, a_y, drop_lo, top, floor, b_x, b_y, m_cos, m_sin, m_tx,
-                m_ty, rows, width, parts[p], block_lo, block_hi, block_drop_lo, with_drops,
-                scale, first, second, before, middle, after, nearest[p], bound[p],
+                m_ty, rows, width, parts[p], spans, block_lo, block_hi, block_drop_lo,
+                with_drops, scale, first, second, before, middle, after, nearest[p], bound[p],
             )  # fmt: skip
         else:
             accumulate_plain(
                 depth, lo, hi, a_x, a_y, b_x, b_y, m_cos, m_sin, m_tx, m_ty, rows, width,
-                parts[p], block_lo, block_hi, scale, first, second, before, middle, after,
-                nearest[p], bound[p],
+                parts[p], spans, block_lo, block_hi, scale, first, second, before, middle,
+                after, nearest[p], bound[p],
             )  # fmt: skip
     for p in range(1, parts.shape[0]):
         merge(nearest[0], nearest[p])
