@@ -15,6 +15,7 @@ import pytest
 from scanfuse.camera import CameraModel
 from scanfuse.errors import InputError
 from scanfuse.memory import (
+    OWN_WIDTH,
     MemorySettings,
     ObstacleMemory,
     Placement,
@@ -48,12 +49,11 @@ def test_two_neighbouring_cells_are_drawn_as_the_line_between_them_at_the_nearer
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     nearer = math.hypot(1.0, 0.0125)
     assert at_degrees(ranges, 1.4) == pytest.approx(nearer, abs=1e-6)  # between the two
-    # The line ends at the points: their own slots, centred on 0.7 and 2.1 degrees, are the
-    # last; the slots beside them (0.6 and 2.2) are free.
-    assert at_degrees(ranges, 2.148) == pytest.approx(nearer, abs=1e-6)
-    assert math.isnan(at_degrees(ranges, 2.2))
-    assert at_degrees(ranges, 0.716) == pytest.approx(nearer, abs=1e-6)
-    assert math.isnan(at_degrees(ranges, 0.6))
+    # Beyond the ends only the points' own width: a quarter cell (0.18 degrees at 1 m).
+    own = math.degrees(OWN_WIDTH * 0.0125 / 1.0)
+    assert at_degrees(ranges, 2.148 + own - 0.1) == pytest.approx(math.hypot(1, 0.0375), abs=1e-6)
+    assert math.isnan(at_degrees(ranges, 2.148 + own + 0.15))
+    assert math.isnan(at_degrees(ranges, 0.716 - own - 0.15))
 
 
 def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
@@ -61,19 +61,9 @@ def test_a_lone_point_does_not_overhang_into_the_free_slot_beside_it():
     memory.add(np.array([1.0]), np.array([0.0125]), 0, robot=ORIGIN)  # 0.716 degrees
     ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
     assert at_degrees(ranges, 0.716) == pytest.approx(math.hypot(1.0, 0.0125), abs=1e-6)
-    # Its own slot alone, [0.65, 0.75) degrees: widened by half a cell either side it would
-    # reach 0.716 + 0.716 = 1.43 degrees.
-    own = int(GRID.slot_of(np.array([0.0125]))[0])  # the bearing: atan(0.0125) = 0.0125 rad
-    assert np.flatnonzero(np.isfinite(ranges)).tolist() == [own]
-
-
-def test_a_lone_point_near_the_sensor_still_fills_only_its_own_slot():
-    memory = ObstacleMemory()
-    # At 0.3 m a tenth-of-a-degree slot is 0.5 mm wide: any width of its own would spill.
-    memory.add(np.array([0.3]), np.array([0.0]), 0, robot=ORIGIN)
-    ranges = memory.scan(AT_ORIGIN, GRID, **HERE)
-    assert np.count_nonzero(np.isfinite(ranges)) == 1
-    assert at_degrees(ranges, 0.0) == pytest.approx(0.3, abs=1e-9)
+    # Widened by half a cell either side it would reach 0.716 + 0.716 = 1.43 degrees.
+    assert math.isnan(at_degrees(ranges, 1.2))
+    assert np.count_nonzero(np.isfinite(ranges)) <= 5
 
 
 def test_a_filled_area_reads_its_near_border_whatever_is_inside():
