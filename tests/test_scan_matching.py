@@ -318,12 +318,21 @@ def bent(first: PlanarPose, second: PlanarPose, noise: float, seed: int) -> Scan
     return lidar_scan(ranges)
 
 
-def test_a_scan_bent_by_a_slip_is_refused_and_the_next_straight_one_recovers_the_slip():
+STANDING = PlanarPose(0.0, 0.0, 0.0)
+
+
+def settled() -> DriftCorrection:
+    """A drift correction after 12 scans of a standing robot with 5 mm noise: 12 residuals
+    in its window of 16."""
     drift = DriftCorrection()
-    mount = Transform()
-    standing = PlanarPose(0.0, 0.0, 0.0)
     for k in range(12):
-        drift.update(room(base_in_room(standing), 0.005, k), standing, mount)
+        drift.update(room(base_in_room(STANDING), 0.005, k), STANDING, Transform())
+    return drift
+
+
+def test_a_scan_bent_by_a_slip_is_refused_and_the_next_straight_one_recovers_the_slip():
+    drift = settled()
+    mount, standing = Transform(), STANDING
     # During the next sweep the wheels turn 0.08 rad in place and the robot does not: the
     # de-skew turns the sweep's second half by that much.
     slipped = base_in_room(PlanarPose(0.0, 0.0, -0.08))
@@ -342,11 +351,8 @@ def test_a_scan_bent_by_a_slip_is_refused_and_the_next_straight_one_recovers_the
 
 
 def test_a_scene_whose_matches_all_get_worse_is_refused_only_until_the_median_follows():
-    drift = DriftCorrection()
-    mount = Transform()
-    standing = PlanarPose(0.0, 0.0, 0.0)
-    for k in range(12):
-        drift.update(room(base_in_room(standing), 0.005, k), standing, mount)
+    drift = settled()
+    mount, standing = Transform(), STANDING
     verdicts = []
     for k in range(12, 28):  # from now on three times the noise (clutter, a worse sensor)
         result = drift.update(room(base_in_room(standing), 0.015, k), standing, mount)
