@@ -19,6 +19,8 @@ directions with enough information are updated, the others keep odometry's value
 corridor's length, a single wall's direction along it). When yaw itself is not observable,
 too few readings pair, the residual stays large, or the correction exceeds what odometry can
 plausibly be wrong by, the match is refused and odometry's guess is returned.
+`DriftCorrection` also refuses a scan whose residual stands far above the recent matches'
+(`DISTORTION_RATIO`): one swept while the wheels slipped, bent by its de-skew.
 """
 
 from __future__ import annotations
