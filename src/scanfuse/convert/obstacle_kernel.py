@@ -78,6 +78,20 @@ def _pick(nearest: Any, spread: float, best: Any, drops: Any) -> None:
         drops[s] = is_drop
 
 
+def _row_blocks(row: int, width: int, columns: Any, spans: Any) -> tuple[int, int, int, int]:
+    """Where row `row` is read within the band `columns` [start, stop, first block]: only its
+    span of columns whose points can land on the grid (`row_spans`). (row start, row stop) as
+    flat pixel indices, then the flat start and the index of the band's block holding the
+    span's start: the blocks stay where `block_lo` has them, each cut to the span (its
+    extremes still bound the pixels left)."""
+    column_start = max(columns[0], 0)
+    span_start = max(column_start, spans[row, 0])
+    row_start = row * width + span_start
+    row_stop = row * width + min(columns[1], width, spans[row, 1])
+    skipped = (span_start - column_start) // BLOCK
+    return row_start, row_stop, row * width + column_start + skipped * BLOCK, columns[2] + skipped
+
+
 def _accumulate(
     depth: Any,
     lo: Any,
@@ -138,25 +152,16 @@ def _accumulate(
     bin_of = np.empty(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
     chosen = np.empty(BLOCK, np.int64)
-    column_start = max(columns[0], 0)
-    column_stop = min(columns[1], width)
     block_rows = min(block_lo.shape[0], block_hi.shape[0], block_drop_lo.shape[0])
     block_rows = min(block_rows, spans.shape[0])
     blocks = min(block_lo.shape[1], block_hi.shape[1], block_drop_lo.shape[1])
     for row in rows:
         if not 0 <= row < block_rows:
             continue
-        # Only the row's span of columns whose points can land on the grid (`row_spans`).
-        span_start = max(column_start, spans[row, 0])
-        row_start = row * width + span_start
-        row_stop = row * width + min(column_stop, spans[row, 1])
+        row_start, row_stop, first_start, block = row_blocks(row, width, columns, spans)
         if not row_start < row_stop <= size:
             continue
-        # The blocks stay where `block_lo` has them: from the one holding the span's start,
-        # each cut to the span (its extremes still bound the pixels left).
-        skipped = (span_start - column_start) // BLOCK
-        block = columns[2] + skipped
-        for block_start in range(row * width + column_start + skipped * BLOCK, row_stop, BLOCK):
+        for block_start in range(first_start, row_stop, BLOCK):
             start = max(block_start, row_start)
             stop = min(block_start + BLOCK, row_stop)
             if not 0 <= block < blocks:
@@ -342,21 +347,15 @@ def _accumulate_plain(
     bin_of = np.empty(BLOCK, np.int64)
     squared = np.empty(BLOCK, np.float32)
     chosen = np.empty(BLOCK, np.int64)
-    column_start = max(columns[0], 0)
-    column_stop = min(columns[1], width)
     block_rows, blocks = block_lo.shape
     block_rows = min(block_rows, spans.shape[0])
     for row in rows:
         if not 0 <= row < block_rows:
             continue
-        span_start = max(column_start, spans[row, 0])
-        row_start = row * width + span_start
-        row_stop = row * width + min(column_stop, spans[row, 1])
+        row_start, row_stop, first_start, block = row_blocks(row, width, columns, spans)
         if not row_start < row_stop <= size:
             continue
-        skipped = (span_start - column_start) // BLOCK
-        block = columns[2] + skipped
-        for block_start in range(row * width + column_start + skipped * BLOCK, row_stop, BLOCK):
+        for block_start in range(first_start, row_stop, BLOCK):
             start = max(block_start, row_start)
             stop = min(block_start + BLOCK, row_stop)
             if not 0 <= block < blocks:
@@ -528,6 +527,7 @@ def _row_spans(
 
 
 row_spans = compiled(_row_spans)
+row_blocks = compiled(_row_blocks)
 seen_slots = compiled(_seen_slots)
 pick = compiled(_pick)
 accumulate = compiled(_accumulate)
