@@ -142,36 +142,15 @@ class RobotSpec:
 
     def lidars(self) -> tuple[LidarMount, ...]:
         """Every LiDAR, the first (the fused scan's frame and trigger) first."""
+        z = self.lidar_height
         if not self.several:
             return (
-                LidarMount(
-                    '',
-                    'laser',
-                    '/scan',
-                    self.lidar_x,
-                    self.lidar_y,
-                    self.lidar_height,
-                    self.lidar_yaw,
-                ),
+                LidarMount('', 'laser', '/scan', self.lidar_x, self.lidar_y, z, self.lidar_yaw),
             )
-        mounts = [
-            LidarMount(
-                'front',
-                'front_laser',
-                '/front/scan',
-                self.lidar_x,
-                self.lidar_y,
-                self.lidar_height,
-                self.lidar_yaw,
-            )
-        ]
+        mounts = [_named_lidar('front', self.lidar_x, self.lidar_y, self.lidar_yaw, z)]
         if self.rear_lidar is not None:
             rear = self.rear_lidar
-            mounts.append(
-                LidarMount(
-                    'rear', 'rear_laser', '/rear/scan', rear.x, rear.y, self.lidar_height, rear.yaw
-                )
-            )
+            mounts.append(_named_lidar('rear', rear.x, rear.y, rear.yaw, z))
         return tuple(mounts)
 
     def cameras(self) -> tuple[CameraMount, ...]:
@@ -249,6 +228,11 @@ class RobotSpec:
             'forcelimited="true"/>'
             for side in ('left', 'right')
         )
+
+
+def _named_lidar(name: str, x: float, y: float, yaw: float, z: float) -> LidarMount:
+    """A LiDAR named as examples/scanfuse_multi.yaml names it (`front`, ...)."""
+    return LidarMount(name, f'{name}_laser', f'/{name}/scan', x, y, z, yaw)
 
 
 def _named_camera(name: str, x: float, y: float, yaw: float, z: float, pitch: float) -> CameraMount:
