@@ -191,6 +191,11 @@ def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> Fusion
     )
 
 
+def _placement(mount: LidarMount | CloudMount | CameraMount) -> dict[str, float]:
+    """A sensor's pose in base_link as a named source's parameters give it."""
+    return {'x': mount.x, 'y': mount.y, 'z': mount.z, 'yaw': mount.yaw}
+
+
 def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
     """A robot with several sensors: each one a named source (examples/scanfuse_multi.yaml),
     the output a 360-degree scan in the first LiDAR's frame (`full_circle`)."""
@@ -202,22 +207,13 @@ def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
     cameras = robot.cameras()
     values['lidars'] = [mount.source for mount in lidars]
     for mount in lidars:
-        values[mount.source] = {
-            'topic': mount.topic,
-            'x': mount.x,
-            'y': mount.y,
-            'z': mount.z,
-            'yaw': mount.yaw,
-        }
+        values[mount.source] = {'topic': mount.topic, **_placement(mount)}
     if robot.cloud is not None:
         cloud = robot.cloud
         values['clouds'] = [cloud.source]
         values[cloud.source] = {
             'topic': cloud.topic,
-            'x': cloud.x,
-            'y': cloud.y,
-            'z': cloud.z,
-            'yaw': cloud.yaw,
+            **_placement(cloud),
             'range_max': OBSTACLE_CLOUD_RANGE,
         }
     values['cameras'] = [mount.source for mount in cameras]
@@ -225,11 +221,8 @@ def _named_fusion_config(config: SimConfig, base: FusionConfig) -> FusionConfig:
         values[cam.source] = {
             'depth_topic': cam.depth_topic,
             'camera_info_topic': cam.info_topic,
-            'x': cam.x,
-            'y': cam.y,
-            'z': cam.z,
+            **_placement(cam),
             'pitch': cam.pitch,
-            'yaw': cam.yaw,
         }
     values.update(
         full_circle=True,
