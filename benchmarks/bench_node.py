@@ -25,11 +25,13 @@ spin), against the wall clock at `Popen`: the rest up to the first fused scan is
 discovery and the first pair. The start-up trials (the node alone with this process's
 publishers, no relay, started at phases spread over one announcement period) run under the
 tests' `LOCALHOST` discovery range (no multicast, off the network), and once under ROS 2's
-default `SUBNET` (multicast), each on this run's own domain. Fast DDS (the rmw of the
-wheels) matches a late-joining participant with one that has run for a while either at once
-or only at the older one's next periodic announcement (every 3 s by default; measured: with
-the publisher's period set to 0.3 s the wait is below 0.7 s, more announcements from the
-new participant change nothing, and a bare rclpy publisher and subscriber show the same).
+default `SUBNET` (multicast), each on this run's own domain; then the relay is started in
+the node's place, at the same phases: its first relayed scan is what rclpy and DDS alone
+take. Fast DDS (the rmw of the wheels) matches a late-joining participant with one that has
+run for a while either at once or only at the older one's next periodic announcement (every
+3 s by default): the older one answers a new participant's first announcement once, and
+when that answer does not make the match, more announcements from the new participant
+(1 or 20 instead of the default 5) change nothing.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ from scanfuse.scan import Scan
 SECONDS = 12.0
 WARM_UP_S = 2.0
 START_TIMEOUT_S = 60.0
-STARTS = 5  # start-up trials per pair_wait
+STARTS = 10  # start-up trials of each kind
 # The publishers run this long before the node starts, as a robot's drivers have: past the
 # quick announcements a new DDS participant sends in its first half second, which find a
 # node that starts meanwhile at once (a robot's node never starts that early).
@@ -144,9 +146,15 @@ def measure(
     relay: bool = True,
     settle: float = SETTLE_S,
     discovery: str = 'LOCALHOST',
+    started: str = 'node',
 ) -> dict[str, object]:
     """Latencies (node, relay), node CPU share, first fused scan, node ready and scans sent,
-    one run; `seconds` 0: stop at the first fused scan (start-up only, no relay needed)."""
+    one run; `seconds` 0: stop at the first fused scan (start-up only, no relay needed).
+    `started` 'relay' (start-up only): the relay is started in the node's place, and its
+    first relayed scan counts as the first output (rclpy and DDS alone, no scanfuse)."""
+    if started not in ('node', 'relay') or (started == 'relay' and (relay or seconds)):
+        msg = f'started {started!r}: "node", or "relay" for a start-up alone (relay=False)'
+        raise ValueError(msg)
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image, LaserScan
@@ -174,7 +182,9 @@ def measure(
             stamp = scan_from_cdr(raw).stamp_ns
             if stamp in sent:
                 latencies[kind].append(time.monotonic() - sent[stamp])
-            if kind == 'node' and not first_fused and stamp in sent_raw and raw != sent_raw[stamp]:
+            if first_fused or stamp not in sent_raw:
+                return
+            if started == 'relay' or (kind == 'node' and raw != sent_raw[stamp]):
                 first_fused.append(time.monotonic())
 
         return callback
@@ -188,12 +198,20 @@ def measure(
     log = Path(log_dir.name) / 'node.log'
     log_file = log.open('wb')
     processes: list[subprocess.Popen[bytes]] = []
+    relay_command = [
+        sys.executable,
+        '-m',
+        'tests.support.loopback',
+        'relay',
+        '/scan',
+        '/scan_relay',
+    ]
     if relay:
         # Up and relaying before the node starts, as a robot's other nodes are: its own
         # start-up and discovery are not the node's.
         processes.append(
-            subprocess.Popen(
-                [sys.executable, '-m', 'tests.support.loopback', 'relay', '/scan', '/scan_relay'],
+            subprocess.Popen(  # noqa: S603 - our own interpreter and module
+                relay_command,
                 env=env,
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
@@ -214,8 +232,9 @@ def measure(
             if node_process is None and settled:
                 launched_wall = time.time()
                 launched = now = time.monotonic()
+                command = [sys.executable, '-m', 'scanfuse.ros.node', '--ros-args', *ros_args]
                 node_process = subprocess.Popen(  # noqa: S603 - our own interpreter and module
-                    [sys.executable, '-m', 'scanfuse.ros.node', '--ros-args', *ros_args],
+                    relay_command if started == 'relay' else command,
                     env=_node_env(env),
                     stdout=log_file,
                     stderr=subprocess.STDOUT,
@@ -333,30 +352,51 @@ def run() -> list[Row]:
             ),
         ]
     # Both pair_wait values under the tests' LOCALHOST; ROS 2's default SUBNET once, to tell
-    # whether a slow start is LOCALHOST's (no multicast) or Fast DDS's discovery as such.
-    for discovery, pair_wait in (('LOCALHOST', 0.0), ('LOCALHOST', 0.05), ('SUBNET', 0.0)):
-        starts = [
-            measure(
-                pair_wait,
-                0.0,
-                relay=False,
-                settle=SETTLE_S + ANNOUNCE_PERIOD_S * i / STARTS,
-                discovery=discovery,
+    # whether a slow start is LOCALHOST's (no multicast) or Fast DDS's discovery as such;
+    # and the do-nothing relay started in the node's place: what rclpy and DDS alone take.
+    # Interleaved, phase by phase, so each sees the same moments of the machine.
+    kinds = (
+        ('node', 'LOCALHOST', 0.0),
+        ('node', 'LOCALHOST', 0.05),
+        ('node', 'SUBNET', 0.0),
+        ('relay', 'LOCALHOST', 0.0),
+    )
+    starts: dict[tuple[str, str, float], list[dict[str, object]]] = {kind: [] for kind in kinds}
+    for i in range(STARTS):
+        for started, discovery, pair_wait in kinds:
+            starts[started, discovery, pair_wait].append(
+                measure(
+                    pair_wait,
+                    0.0,
+                    relay=False,
+                    settle=SETTLE_S + ANNOUNCE_PERIOD_S * i / STARTS,
+                    discovery=discovery,
+                    started=started,
+                )
             )
-            for i in range(STARTS)
-        ]
-        first = [float(start['first_fused_s']) for start in starts]  # type: ignore[arg-type]
-        ready = [float(start['ready_s']) for start in starts]  # type: ignore[arg-type]
+    for (started, discovery, pair_wait), results in starts.items():
+        first = [float(start['first_fused_s']) for start in results]  # type: ignore[arg-type]
+        spread = f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
+        if started == 'relay':
+            rows.append(
+                Row(
+                    'node',
+                    f'the relay in its place: process start to first relayed scan, {discovery},'
+                    f' {STARTS} starts',
+                    float(np.median(first)),
+                    f'{spread}/{STARTS} (rclpy and DDS alone)',
+                )
+            )
+            continue
+        ready = [float(start['ready_s']) for start in results]  # type: ignore[arg-type]
         rows.append(
             Row(
                 'node',
                 f'process start to first fused scan, {discovery}, pair_wait {pair_wait:g} s,'
                 f' {STARTS} starts',
                 float(np.median(first)),
-                f'median; worst {max(first):.2f} s, within 2 s '
-                f'{sum(f <= 2.0 for f in first)}/{STARTS}; node ready median '
-                f'{np.median(ready):.2f} s, worst {max(ready):.2f} s (the rest: DDS '
-                'discovery, first pair)',
+                f'{spread}/{STARTS}; node ready median {np.median(ready):.2f} s, worst '
+                f'{max(ready):.2f} s (the rest: DDS discovery, first pair)',
             )
         )
     return rows

@@ -22,6 +22,7 @@ from scanfuse.scan import AngleGrid
 from scanfuse.transforms import Extrinsics
 
 SIZES = ((640, 480), (848, 480), (1280, 720), (1920, 1080))
+CADENCE_SIZE = (1280, 720)  # the size timed at a camera's 30 Hz cadence
 EXTRINSICS = Extrinsics.from_mounting(
     camera_x=0.1, camera_height=0.45, camera_pitch=math.radians(20.0), lidar_height=0.3
 )

@@ -146,8 +146,9 @@ class FusionConfig(BaseModel):
         description=(
             'obstacle method: threads per depth frame (image columns split between them, '
             'the scan is the same); 1 runs on the calling thread; 2 only pays with a core to '
-            'spare (best frames 1.6-1.9x faster), on busy cores it is slower than 1 because '
-            "numba's OpenMP workers wait for a core"
+            'spare (frames back to back 1.5-1.8x faster), on busy cores it is slower than 1 '
+            "because numba's OpenMP workers wait for a core, and where a worker idle between "
+            'frames is slow to wake (a virtual machine: make bench times frames at 30 Hz) too'
         ),
     )
     detect_drops: bool = Field(
