@@ -31,7 +31,8 @@ take. Fast DDS (the rmw of the wheels) matches a late-joining participant with o
 run for a while either at once or only at the older one's next periodic announcement (every
 3 s by default): the older one answers a new participant's first announcement once, and
 when that answer does not make the match, more announcements from the new participant
-(1 or 20 instead of the default 5) change nothing.
+(1 or 20 instead of the default 5; a bare rclpy subscriber, 30 starts each, outside this
+benchmark) change nothing.
 """
 
 from __future__ import annotations
