@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -424,6 +424,15 @@ class DriveLog:
 Released = Callable[['MethodStream', 'LidarFrame', 'Scan'], None]
 
 
+class Watcher(Protocol):
+    """Fed the simulator's events as a stream is, before the streams; releases nothing
+    (the evaluation's record of what the camera showed)."""
+
+    def add_state(self, sample: StateSample) -> None: ...
+
+    def add_depth(self, frame: DepthFrame) -> None: ...
+
+
 @dataclass
 class StreamFeed:
     """A simulation sink that feeds every method's stream as the node is fed, in time order.
@@ -434,6 +443,7 @@ class StreamFeed:
 
     streams: Sequence[MethodStream]
     released: Released
+    watchers: Sequence[Watcher] = ()
     log: DriveLog = field(default_factory=DriveLog)
     odometry: OdometryHistory = field(default_factory=OdometryHistory)
 
@@ -445,10 +455,14 @@ class StreamFeed:
         self.log.true_path.append((sample.position[0], sample.position[1]))
         odometry = sample.odometry
         self.odometry.add(sample.stamp_ns, PlanarPose(odometry.x, odometry.y, odometry.yaw))
+        for watcher in self.watchers:
+            watcher.add_state(sample)
         for stream in self.streams:
             self._emit(stream, stream.add_state(sample))
 
     def on_depth(self, frame: DepthFrame) -> None:
+        for watcher in self.watchers:
+            watcher.add_depth(frame)
         for stream in self.streams:
             self._emit(stream, stream.add_depth(frame, frame.camera.frame_id or OPTICAL_FRAME))
 
@@ -483,13 +497,14 @@ def drive(
     driver: MethodStream,
     *,
     observers: Sequence[MethodStream] = (),
+    watchers: Sequence[Watcher] = (),
     on_scan: Released | None = None,
     keep_frames: bool = False,
 ) -> tuple[TrialOutcome, DriveLog]:
     """Run one closed-loop trial driving on what `driver` releases, in real sensor time.
 
-    `observers` are fed the same events (scoring, maps); `on_scan` sees every scan any
-    stream releases.
+    `observers` are fed the same events (scoring, maps), `watchers` too and before them;
+    `on_scan` sees every scan any stream releases.
     """
     world = sim.world
     goal = world_to_odom(world.start, *trial.goal)
@@ -521,7 +536,7 @@ def drive(
             feed.log.frames.append(FrameRecord(frame, believed, scan))
         sim.set_command(*navigator.step(scan, now, believed))
 
-    feed = StreamFeed([driver, *observers], released)
+    feed = StreamFeed([driver, *observers], released, watchers)
     log = feed.log
 
     def stop() -> bool:
@@ -618,10 +633,14 @@ TURNING_TRIALS: dict[str, TurningSpec] = {
 
 
 def turn(
-    sim: Simulation, spec: TurningSpec, streams: Sequence[MethodStream], on_scan: Released
+    sim: Simulation,
+    spec: TurningSpec,
+    streams: Sequence[MethodStream],
+    on_scan: Released,
+    watchers: Sequence[Watcher] = (),
 ) -> DriveLog:
     """Run one scripted turning trial, every stream fed in real sensor time."""
-    feed = StreamFeed(streams, on_scan)
+    feed = StreamFeed(streams, on_scan, watchers)
     sim.run(spec.duration, spec.make_controller(), feed)
     sim.set_command(0.0, 0.0)
     feed.finish()

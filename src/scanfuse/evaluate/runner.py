@@ -67,7 +67,6 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-    from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
@@ -443,6 +442,7 @@ class Evaluation:
             crash = MethodStream('obstacle', base, sim.camera, transforms) if keep else None
             crash_scans: list[tuple[LidarFrame, Scan]] = []
             observers = [*(scorer.streams if scorer else ()), *((crash,) if crash else ())]
+            watchers = scorer.watchers if scorer else []
 
             def on_scan(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
                 if scorer is not None:
@@ -451,7 +451,13 @@ class Evaluation:
                     crash_scans.append((frame, scan))
 
             outcome, log = drive(
-                sim, trial, driver, observers=observers, on_scan=on_scan, keep_frames=keep
+                sim,
+                trial,
+                driver,
+                observers=observers,
+                watchers=watchers,
+                on_scan=on_scan,
+                keep_frames=keep,
             )
             if scorer is not None:
                 scorer.close()
@@ -499,7 +505,7 @@ class Evaluation:
             scorer = _Scorer(
                 self, spec.label, spec.label, sim, base, robot_transforms(sim), mapped=False
             )
-            turn(sim, spec, scorer.streams, scorer.add)
+            turn(sim, spec, scorer.streams, scorer.add, scorer.watchers)
             scorer.close()
         finally:
             sim.close()
@@ -712,8 +718,9 @@ class _Scorer:
             range_max=base.range_max,
             drops=sim.world.drops,
         )
-        # First, so that a frame counts as shown before any scan it releases is scored.
-        self.streams = [SeenObserver(base, camera, seen, extrinsics), *self._names]
+        self.streams = list(self._names)
+        # Fed first, so that a frame counts as shown before any scan it releases is scored.
+        self.watchers = [SeenObserver(seen, extrinsics)]
         self._pending: dict[int, dict[str, Scan]] = {}
         self.truths = SlotTruthBuilder(
             sim.world.obstacles,
@@ -800,38 +807,24 @@ class _Scorer:
                 total[key] = total.get(key, 0) + value
 
 
-class SeenObserver(MethodStream):
-    """Fed the events as a stream is, it releases nothing: it marks what each depth image
-    shows (`SeenSurfaces`), placed at the simulator's true pose at the image's stamp."""
+class SeenObserver:
+    """A watcher (`closed_loop.Watcher`): marks what each depth image shows
+    (`SeenSurfaces`), placed at the simulator's true pose at the image's stamp."""
 
-    def __init__(
-        self,
-        base: FusionConfig,
-        camera: CameraModel,
-        seen: SeenSurfaces,
-        extrinsics: Extrinsics,
-    ) -> None:
-        super().__init__('lidar', base, camera)
+    def __init__(self, seen: SeenSurfaces, extrinsics: Extrinsics) -> None:
         self.seen = seen
         self.base_to_optical = extrinsics.base_to_camera_optical
         self.true_poses = OdometryHistory()
 
-    def add_state(self, sample: StateSample) -> list[tuple[LidarFrame, Scan]]:
+    def add_state(self, sample: StateSample) -> None:
         pose = sample.true_pose
         self.true_poses.add(sample.stamp_ns, PlanarPose(pose.x, pose.y, pose.yaw))
-        return []
 
-    def add_depth(self, frame: DepthFrame, frame_id: str) -> list[tuple[LidarFrame, Scan]]:
-        del frame_id
+    def add_depth(self, frame: DepthFrame) -> None:
         pose = self.true_poses.pose_at(frame.stamp_ns).pose
         if pose is not None:
             base = Transform.from_rpy(0.0, 0.0, pose.yaw, (pose.x, pose.y, 0.0))
             self.seen.add(frame.depth, frame.camera, base @ self.base_to_optical)
-        return []
-
-    def add_scan(self, frame: LidarFrame) -> list[tuple[LidarFrame, Scan]]:
-        del frame
-        return []
 
 
 def _obstacle_front(world: World) -> float | None:
