@@ -330,19 +330,16 @@ def run() -> list[Row]:
             Row('node', f'relay latency p50 (same run), {label}', relay_p50, f'{len(relay)} back'),
             Row('node', f'relay latency p99 (same run), {label}', float(np.percentile(relay, 99))),
             Row('node', f'node p50 - relay p50 - fusion, {label}', over, 'target <= 0.5 ms'),
-            Row(
-                'node',
-                f'node CPU (share of one core), {label}',
-                float(result['cpu']),  # type: ignore[arg-type]
-                'user + system; target <= 6 %',
-                unit='share',
-            ),
-            Row(
-                'node',
-                f'relay CPU (same run), {label}',
-                float(result['relay_cpu']),  # type: ignore[arg-type]
-                'user + system; /scan in and out only (10 Hz)',
-                unit='share',
+            *(
+                Row('node', f'{what}, {label}', float(result[key]), why, unit='share')  # type: ignore[arg-type]
+                for what, key, why in (
+                    ('node CPU (share of one core)', 'cpu', 'user + system; target <= 6 %'),
+                    (
+                        'relay CPU (same run)',
+                        'relay_cpu',
+                        'user + system; /scan in and out only (10 Hz)',
+                    ),
+                )
             ),
             Row(
                 'node',
@@ -379,27 +376,16 @@ def run() -> list[Row]:
         first = [float(start['first_fused_s']) for start in results]  # type: ignore[arg-type]
         spread = f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
         if started == 'relay':
-            rows.append(
-                Row(
-                    'node',
-                    f'the relay in its place: process start to first relayed scan, {discovery},'
-                    f' {STARTS} starts',
-                    float(np.median(first)),
-                    f'{spread}/{STARTS} (rclpy and DDS alone)',
-                )
-            )
-            continue
-        ready = [float(start['ready_s']) for start in results]  # type: ignore[arg-type]
-        rows.append(
-            Row(
-                'node',
-                f'process start to first fused scan, {discovery}, pair_wait {pair_wait:g} s,'
-                f' {STARTS} starts',
-                float(np.median(first)),
+            name = f'the relay in its place: process start to first relayed scan, {discovery}'
+            note = f'{spread}/{STARTS} (rclpy and DDS alone)'
+        else:
+            name = f'process start to first fused scan, {discovery}, pair_wait {pair_wait:g} s'
+            ready = [float(start['ready_s']) for start in results]  # type: ignore[arg-type]
+            note = (
                 f'{spread}/{STARTS}; node ready median {np.median(ready):.2f} s, worst '
-                f'{max(ready):.2f} s (the rest: DDS discovery, first pair)',
+                f'{max(ready):.2f} s (the rest: DDS discovery, first pair)'
             )
-        )
+        rows.append(Row('node', f'{name}, {STARTS} starts', float(np.median(first)), note))
     return rows
 
 
