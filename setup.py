@@ -24,7 +24,12 @@ NODE_EXECUTABLE = 'scanfuse_node = scanfuse.cli:node_entry'
 
 def ros_data_files() -> list[tuple[str, list[str]]]:
     here = Path(__file__).resolve().parent
-    configs = sorted(p.relative_to(here).as_posix() for p in (here / 'examples').glob('*.yaml'))
+    # The parameter files and the Fast DDS profile (examples/fastdds_announce.xml).
+    configs = sorted(
+        p.relative_to(here).as_posix()
+        for pattern in ('*.yaml', '*.xml')
+        for p in (here / 'examples').glob(pattern)
+    )
     return [
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

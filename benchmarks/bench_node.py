@@ -32,11 +32,15 @@ run for a while either at once or only at the older one's next periodic announce
 3 s by default): the older one answers a new participant's first announcement once, and
 when that answer does not make the match, more announcements from the new participant
 (1 or 20 instead of the default 5; a bare rclpy subscriber, 30 starts each, outside this
-benchmark) change nothing.
+benchmark) change nothing. Announcing more often on the older side does: the last two
+start-up rows put the drivers in a process of their own (`start_with_drivers`), once with
+Fast DDS's defaults and once with every process announcing every 0.5 s
+(`examples/fastdds_announce.xml`).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -46,6 +50,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from rosbags.highlevel import AnyReader
 from tests.support import with_repository_on_path
 from tests.support.synthetic import Scene
 
@@ -310,6 +315,105 @@ def measure(
     }
 
 
+# The drivers of `start_with_drivers`: this benchmark's scene at 10 Hz (scan) and
+# 30 Hz (depth, CameraInfo), stamped now, until killed.
+_DRIVERS = """
+import time
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, LaserScan
+from benchmarks.bench_node import DEPTH_HZ, SCAN_HZ, _scene_and_scan
+from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_to_cdr, typestore
+scene, lidar = _scene_and_scan()
+store, depth = typestore(), scene.depth_mm()
+rclpy.init()
+node = rclpy.create_node('scanfuse_bench_drivers')
+scans = node.create_publisher(LaserScan, '/scan', qos_profile_sensor_data)
+images = node.create_publisher(Image, '/camera/depth/image_raw', qos_profile_sensor_data)
+infos = node.create_publisher(CameraInfo, '/camera/depth/camera_info', qos_profile_sensor_data)
+next_scan = next_depth = time.monotonic()
+while True:
+    now = time.monotonic()
+    if now >= next_depth:
+        stamp = time.time_ns()
+        images.publish(depth_to_cdr(depth, frame_id='cam', stamp_ns=stamp, store=store))
+        infos.publish(camera_to_cdr(scene.camera, stamp_ns=stamp, store=store))
+        next_depth += 1.0 / DEPTH_HZ
+    if now >= next_scan:
+        scans.publish(scan_to_cdr(lidar.with_ranges(lidar.ranges, stamp_ns=time.time_ns()), store))
+        next_scan += 1.0 / SCAN_HZ
+    rclpy.spin_once(node, timeout_sec=max(0.0, min(next_scan, next_depth) - time.monotonic()))
+"""
+DRIVER_PROFILE = Path(__file__).resolve().parent.parent / 'examples' / 'fastdds_announce.xml'
+# How long the recorder of `start_with_drivers` listens after the node's start.
+RECORD_AFTER_START_S = 6.0
+
+
+def start_with_drivers(settle: float, profile: Path | None) -> float:
+    """Process start to first fused scan (seconds; +Inf: none within RECORD_AFTER_START_S)
+    with the drivers in a process of their own (`_DRIVERS`) and the first fused scan
+    received by `tests.support.loopback record`, both up `settle` seconds before the node
+    starts; LOCALHOST, pair_wait 0. With `profile` every process loads that Fast DDS
+    profile (`DRIVER_PROFILE`: announcing every 0.5 s, the cure for the wait at discovery
+    the README names); without, Fast DDS's defaults."""
+    env = _env()
+    if profile is not None:
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
+    _, lidar = _scene_and_scan()
+    ros_args: list[str] = []
+    for name, value in {**NODE_PARAMS, 'pair_wait': 0.0}.items():
+        ros_args += ['-p', f'{name}:={value}']
+    with tempfile.TemporaryDirectory(prefix='scanfuse-bench-announce-') as folder:
+        work = Path(folder)
+        ready, stop, bag = work / 'ready', work / 'stop', work / 'fused.mcap'
+        recorder = subprocess.Popen(  # noqa: S603 - our own interpreter and module
+            [sys.executable, '-m', 'tests.support.loopback', 'record', str(bag), '--topic',
+             '/scan_fused', '--duration', str(START_TIMEOUT_S), '--ready', str(ready),
+             '--stop', str(stop)],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        drivers = subprocess.Popen(  # noqa: S603 - our own interpreter and script
+            [sys.executable, '-c', _DRIVERS],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        node_process = None
+        try:
+            began = time.monotonic()
+            while not ready.exists():
+                if time.monotonic() > began + START_TIMEOUT_S:
+                    msg = 'the recorder did not start'
+                    raise RuntimeError(msg)
+                time.sleep(0.01)
+            time.sleep(max(0.0, began + settle - time.monotonic()))
+            launched_ns = time.monotonic_ns()
+            node_process = subprocess.Popen(  # noqa: S603 - our own interpreter and module
+                [sys.executable, '-m', 'scanfuse.ros.node', '--ros-args', *ros_args],
+                env=_node_env(env),
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            time.sleep(RECORD_AFTER_START_S)
+            stop.write_text('stop', encoding='utf-8')
+            recorder.wait(timeout=START_TIMEOUT_S)
+        finally:
+            for process in (node_process, drivers, recorder):
+                if process is not None and process.poll() is None:
+                    process.terminate()
+                    try:
+                        process.wait(timeout=10)
+                    except subprocess.TimeoutExpired:
+                        process.kill()
+                        process.wait(timeout=10)
+        with AnyReader([bag]) as reader:
+            for _, log_ns, raw in reader.messages():
+                # A fused scan, not the LiDAR's passed through (before the first pair).
+                if not np.array_equal(scan_from_cdr(raw).ranges, lidar.ranges, equal_nan=True):
+                    return (log_ns - launched_ns) / 1e9
+    return math.inf
+
+
 def run() -> list[Row]:
     kernel = kernel_seconds()
     warm_install()
@@ -360,18 +464,24 @@ def run() -> list[Row]:
         ('relay', 'LOCALHOST', 0.0),
     )
     starts: dict[tuple[str, str, float], list[dict[str, object]]] = {kind: [] for kind in kinds}
+    # And the drivers in a process of their own, announcing at Fast DDS's default period and
+    # every 0.5 s (`DRIVER_PROFILE`, every process).
+    apart: dict[str, list[float]] = {'default': [], 'profile': []}
     for i in range(STARTS):
+        settle = SETTLE_S + ANNOUNCE_PERIOD_S * i / STARTS
         for started, discovery, pair_wait in kinds:
             starts[started, discovery, pair_wait].append(
                 measure(
                     pair_wait,
                     0.0,
                     relay=False,
-                    settle=SETTLE_S + ANNOUNCE_PERIOD_S * i / STARTS,
+                    settle=settle,
                     discovery=discovery,
                     started=started,
                 )
             )
+        apart['default'].append(start_with_drivers(settle, None))
+        apart['profile'].append(start_with_drivers(settle, DRIVER_PROFILE))
     for (started, discovery, pair_wait), results in starts.items():
         first = [float(start['first_fused_s']) for start in results]  # type: ignore[arg-type]
         spread = f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
@@ -386,6 +496,21 @@ def run() -> list[Row]:
                 f'{max(ready):.2f} s (the rest: DDS discovery, first pair)'
             )
         rows.append(Row('node', f'{name}, {STARTS} starts', float(np.median(first)), note))
+    announcing = {
+        'default': f'every {ANNOUNCE_PERIOD_S:g} s (default)',
+        'profile': 'every 0.5 s (examples/fastdds_announce.xml)',
+    }
+    for kind, first in apart.items():
+        rows.append(
+            Row(
+                'node',
+                f'process start to first fused scan, drivers a process of their own announcing '
+                f'{announcing[kind]}, LOCALHOST, {STARTS} starts',
+                float(np.median(first)),
+                f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
+                f'/{STARTS}',
+            )
+        )
     return rows
 
 

@@ -187,6 +187,7 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     params = share / 'config' / str(params_name)
     assert params.read_bytes() == (ROOT / 'examples' / str(params_name)).read_bytes()
     assert (share / 'config' / 'scanfuse.yaml').is_file()
+    assert (share / 'config' / 'fastdds_announce.xml').is_file()
     assert (share / 'package.xml').read_bytes() == (ROOT / 'package.xml').read_bytes()
 
     # `ros2 run scanfuse scanfuse_node` runs <prefix>/lib/scanfuse/scanfuse_node.
