@@ -414,6 +414,11 @@ def start_with_drivers(settle: float, profile: Path | None) -> float:
     return math.inf
 
 
+def _spread(first: list[float]) -> str:
+    """A start-up row's note: the worst start and how many came within the 2 s target."""
+    return f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
+
+
 def run() -> list[Row]:
     kernel = kernel_seconds()
     warm_install()
@@ -484,7 +489,7 @@ def run() -> list[Row]:
         apart['profile'].append(start_with_drivers(settle, DRIVER_PROFILE))
     for (started, discovery, pair_wait), results in starts.items():
         first = [float(start['first_fused_s']) for start in results]  # type: ignore[arg-type]
-        spread = f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
+        spread = _spread(first)
         if started == 'relay':
             name = f'the relay in its place: process start to first relayed scan, {discovery}'
             note = f'{spread}/{STARTS} (rclpy and DDS alone)'
@@ -507,8 +512,7 @@ def run() -> list[Row]:
                 f'process start to first fused scan, drivers a process of their own announcing '
                 f'{announcing[kind]}, LOCALHOST, {STARTS} starts',
                 float(np.median(first)),
-                f'median; worst {max(first):.2f} s, within 2 s {sum(f <= 2.0 for f in first)}'
-                f'/{STARTS}',
+                f'{_spread(first)}/{STARTS}',
             )
         )
     return rows
