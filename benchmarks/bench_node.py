@@ -48,6 +48,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rosbags.highlevel import AnyReader
@@ -59,6 +60,9 @@ from scanfuse.config import FusionConfig
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_from_cdr, scan_to_cdr, typestore
 from scanfuse.scan import Scan
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 SECONDS = 12.0
 WARM_UP_S = 2.0
@@ -145,6 +149,56 @@ def kernel_seconds() -> float:
     return median_seconds(lambda: pipeline.fuse(lidar, depth, scene.camera), repeat=15)
 
 
+class SceneDrivers:
+    """This benchmark's scene published as a robot's drivers would: /scan at SCAN_HZ, depth
+    and CameraInfo at DEPTH_HZ (a third of a frame after the first scan), stamped now."""
+
+    def __init__(self, node: Any, start: float) -> None:
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import CameraInfo, Image, LaserScan
+
+        self.scene, self.lidar = _scene_and_scan()
+        self.store, self.depth = typestore(), self.scene.depth_mm()
+        data = qos_profile_sensor_data
+        self.scans = node.create_publisher(LaserScan, '/scan', data)
+        self.images = node.create_publisher(Image, '/camera/depth/image_raw', data)
+        self.infos = node.create_publisher(CameraInfo, '/camera/depth/camera_info', data)
+        self.next_scan, self.next_depth = start, start + 1.0 / DEPTH_HZ / 3
+
+    def publish_due(self, now: float, on_scan: Callable[[int, bytes], None] | None = None) -> bool:
+        """Publish what is due at `now` (monotonic); True when a scan went out (`on_scan`
+        sees its stamp and bytes just before)."""
+        if now >= self.next_depth:
+            stamp = time.time_ns()
+            store = self.store
+            self.images.publish(
+                depth_to_cdr(self.depth, frame_id='cam', stamp_ns=stamp, store=store)
+            )
+            self.infos.publish(camera_to_cdr(self.scene.camera, stamp_ns=stamp, store=store))
+            self.next_depth += 1.0 / DEPTH_HZ
+        if now < self.next_scan:
+            return False
+        stamp = time.time_ns()
+        raw = scan_to_cdr(self.lidar.with_ranges(self.lidar.ranges, stamp_ns=stamp), self.store)
+        if on_scan is not None:
+            on_scan(stamp, raw)
+        self.scans.publish(raw)
+        self.next_scan += 1.0 / SCAN_HZ
+        return True
+
+    def next_due(self) -> float:
+        return min(self.next_scan, self.next_depth)
+
+
+def _node_command(pair_wait: float) -> list[str]:
+    """The node as the benchmark starts it: NODE_PARAMS and `pair_wait`."""
+    params = [f'{name}:={value}' for name, value in {**NODE_PARAMS, 'pair_wait': pair_wait}.items()]
+    return [
+        sys.executable, '-m', 'scanfuse.ros.node', '--ros-args',
+        *(arg for param in params for arg in ('-p', param)),
+    ]  # fmt: skip
+
+
 def measure(
     pair_wait: float,
     seconds: float = SECONDS,
@@ -162,26 +216,21 @@ def measure(
         msg = f'started {started!r}: "node", or "relay" for a start-up alone (relay=False)'
         raise ValueError(msg)
     import rclpy
-    from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import CameraInfo, Image, LaserScan
+    from sensor_msgs.msg import LaserScan
 
-    scene, lidar = _scene_and_scan()
-    store = typestore()
-    depth = scene.depth_mm()
-    camera = scene.camera
     env = _env(discovery)
     os.environ.update({k: env[k] for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')})
     rclpy.init()
     node = rclpy.create_node('scanfuse_bench')
-    scan_pub = node.create_publisher(LaserScan, '/scan', qos_profile_sensor_data)
-    depth_pub = node.create_publisher(Image, '/camera/depth/image_raw', qos_profile_sensor_data)
-    info_pub = node.create_publisher(
-        CameraInfo, '/camera/depth/camera_info', qos_profile_sensor_data
-    )
     sent: dict[int, float] = {}
     sent_raw: dict[int, bytes] = {}
     latencies: dict[str, list[float]] = {'node': [], 'relay': []}
     first_fused: list[float] = []
+
+    def on_scan(stamp: int, raw: bytes) -> None:
+        sent[stamp] = time.monotonic()
+        if not first_fused:
+            sent_raw[stamp] = raw
 
     def on_output(kind: str):  # noqa: ANN202
         def callback(raw: bytes) -> None:
@@ -197,9 +246,6 @@ def measure(
 
     node.create_subscription(LaserScan, '/scan_fused', on_output('node'), 10, raw=True)
     node.create_subscription(LaserScan, '/scan_relay', on_output('relay'), 10, raw=True)
-    ros_args = []
-    for name, value in {**NODE_PARAMS, 'pair_wait': pair_wait}.items():
-        ros_args += ['-p', f'{name}:={value}']
     log_dir = tempfile.TemporaryDirectory(prefix='scanfuse-bench-node-')
     log = Path(log_dir.name) / 'node.log'
     log_file = log.open('wb')
@@ -229,7 +275,7 @@ def measure(
     relay_start = float('nan')
     try:
         began = time.monotonic()
-        next_scan, next_depth = began, began + 1.0 / DEPTH_HZ / 3
+        drivers = SceneDrivers(node, began)
         cpu_start = wall_start = measure_from = None
         scans = 0
         while True:
@@ -238,9 +284,8 @@ def measure(
             if node_process is None and settled:
                 launched_wall = time.time()
                 launched = now = time.monotonic()
-                command = [sys.executable, '-m', 'scanfuse.ros.node', '--ros-args', *ros_args]
                 node_process = subprocess.Popen(  # noqa: S603 - our own interpreter and module
-                    relay_command if started == 'relay' else command,
+                    relay_command if started == 'relay' else _node_command(pair_wait),
                     env=_node_env(env),
                     stdout=log_file,
                     stderr=subprocess.STDOUT,
@@ -266,21 +311,9 @@ def measure(
                     values.clear()
             if wall_start is not None and now >= wall_start + seconds:
                 break
-            if now >= next_depth:
-                stamp = time.time_ns()
-                depth_pub.publish(depth_to_cdr(depth, frame_id='cam', stamp_ns=stamp, store=store))
-                info_pub.publish(camera_to_cdr(camera, stamp_ns=stamp, store=store))
-                next_depth += 1.0 / DEPTH_HZ
-            if now >= next_scan:
-                stamp = time.time_ns()
-                raw = scan_to_cdr(lidar.with_ranges(lidar.ranges, stamp_ns=stamp), store)
-                sent[stamp] = time.monotonic()
-                if not first_fused:
-                    sent_raw[stamp] = raw
-                scan_pub.publish(raw)
+            if drivers.publish_due(now, on_scan):
                 scans += cpu_start is not None
-                next_scan += 1.0 / SCAN_HZ
-            rclpy.spin_once(node, timeout_sec=max(0.0, min(next_scan, next_depth) - now))
+            rclpy.spin_once(node, timeout_sec=max(0.0, drivers.next_due() - now))
         if seconds:
             end = time.monotonic() + 0.5
             while time.monotonic() < end:
@@ -315,34 +348,17 @@ def measure(
     }
 
 
-# The drivers of `start_with_drivers`: this benchmark's scene at 10 Hz (scan) and
-# 30 Hz (depth, CameraInfo), stamped now, until killed.
+# The drivers of `start_with_drivers`, in a process of their own, until killed.
 _DRIVERS = """
 import time
 import rclpy
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image, LaserScan
-from benchmarks.bench_node import DEPTH_HZ, SCAN_HZ, _scene_and_scan
-from scanfuse.ros.messages import camera_to_cdr, depth_to_cdr, scan_to_cdr, typestore
-scene, lidar = _scene_and_scan()
-store, depth = typestore(), scene.depth_mm()
+from benchmarks.bench_node import SceneDrivers
 rclpy.init()
 node = rclpy.create_node('scanfuse_bench_drivers')
-scans = node.create_publisher(LaserScan, '/scan', qos_profile_sensor_data)
-images = node.create_publisher(Image, '/camera/depth/image_raw', qos_profile_sensor_data)
-infos = node.create_publisher(CameraInfo, '/camera/depth/camera_info', qos_profile_sensor_data)
-next_scan = next_depth = time.monotonic()
+drivers = SceneDrivers(node, time.monotonic())
 while True:
-    now = time.monotonic()
-    if now >= next_depth:
-        stamp = time.time_ns()
-        images.publish(depth_to_cdr(depth, frame_id='cam', stamp_ns=stamp, store=store))
-        infos.publish(camera_to_cdr(scene.camera, stamp_ns=stamp, store=store))
-        next_depth += 1.0 / DEPTH_HZ
-    if now >= next_scan:
-        scans.publish(scan_to_cdr(lidar.with_ranges(lidar.ranges, stamp_ns=time.time_ns()), store))
-        next_scan += 1.0 / SCAN_HZ
-    rclpy.spin_once(node, timeout_sec=max(0.0, min(next_scan, next_depth) - time.monotonic()))
+    drivers.publish_due(time.monotonic())
+    rclpy.spin_once(node, timeout_sec=max(0.0, drivers.next_due() - time.monotonic()))
 """
 DRIVER_PROFILE = Path(__file__).resolve().parent.parent / 'examples' / 'fastdds_announce.xml'
 # How long the recorder of `start_with_drivers` listens after the node's start.
@@ -360,9 +376,6 @@ def start_with_drivers(settle: float, profile: Path | None) -> float:
     if profile is not None:
         env['FASTRTPS_DEFAULT_PROFILES_FILE'] = env['FASTDDS_DEFAULT_PROFILES_FILE'] = str(profile)
     _, lidar = _scene_and_scan()
-    ros_args: list[str] = []
-    for name, value in {**NODE_PARAMS, 'pair_wait': 0.0}.items():
-        ros_args += ['-p', f'{name}:={value}']
     with tempfile.TemporaryDirectory(prefix='scanfuse-bench-announce-') as folder:
         work = Path(folder)
         ready, stop, bag = work / 'ready', work / 'stop', work / 'fused.mcap'
@@ -389,7 +402,7 @@ def start_with_drivers(settle: float, profile: Path | None) -> float:
             time.sleep(max(0.0, began + settle - time.monotonic()))
             launched_ns = time.monotonic_ns()
             node_process = subprocess.Popen(  # noqa: S603 - our own interpreter and module
-                [sys.executable, '-m', 'scanfuse.ros.node', '--ros-args', *ros_args],
+                _node_command(0.0),
                 env=_node_env(env),
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
