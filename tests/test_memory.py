@@ -168,6 +168,20 @@ def test_points_older_than_memory_time_are_forgotten():
     assert len(stream.memory) == 0
 
 
+def test_time_standing_still_does_not_age_the_memory_when_memory_ages_while_stopped_is_off():
+    stream = FusionStream(config(memory_time=5.0, memory_ages_while_stopped=False))
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)  # turning: these 2 s count
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 30.0)  # held still 30 s: they do not
+    held = robot.scan()
+    assert reading_at(held.fused, math.pi)[0] == pytest.approx(box_front_range(), abs=0.02)
+    robot.move_to(PlanarPose(-0.3, 0.0, math.pi), 4.0)  # driving on: 2 + 4 s > 5 s
+    robot.scan()
+    assert len(stream.memory) == 0
+
+
 def test_points_beyond_memory_radius_are_forgotten():
     stream = FusionStream(config(memory_radius=2.0))
     robot = Robot(stream, [BOX])

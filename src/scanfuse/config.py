@@ -259,6 +259,13 @@ class FusionConfig(BaseModel):
     memory_time: float = Field(
         20.0, gt=0.0, le=3600.0, description='seconds an obstacle is remembered unless re-seen'
     )
+    memory_ages_while_stopped: bool = Field(
+        default=True,
+        description=(
+            'false: memory_time counts only while the robot moves, so a robot held still '
+            "beside a low obstacle out of the camera's view (stop zone, queue) keeps it"
+        ),
+    )
     memory_cell: float = Field(
         0.025, ge=0.005, le=0.5, description='metres: one remembered point per cell this size'
     )

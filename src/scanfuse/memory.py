@@ -20,7 +20,8 @@ below is that corrected frame, which stays on the walls where wheel odometry dri
 Store: a rolling grid of `cell` metre cells around the robot, one point per cell (the
 newest seen there, its coordinates kept), so its size is bounded by construction:
 (2 radius / cell)^2 cells. A point is forgotten when it is more than `radius` from the
-robot, older than `max_age`, or when the camera looks at its place again and sees it
+robot, older than `max_age` (time the robot stood still not counted, if the stream says so:
+`stand_still`), or when the camera looks at its place again and sees it
 free. Only the camera clears: the LiDAR's plane passes over low obstacles by design.
 Drawn into a scan, neighbouring cells are joined by the line between their points, and a
 point on its own is a quarter cell wide (`_forget_and_project_loop`).
@@ -273,12 +274,24 @@ class ObstacleMemory:
         self._trig = (np.zeros(0), np.zeros(0))
         self._ranges = np.zeros(side * side)
         self.cleared = 0
+        # Time the robot stood still (`stand_still`): every stamp is taken on a clock that
+        # stops then, so a point's age counts only the time the robot moved.
+        self._still_ns = 0
 
     def __len__(self) -> int:
         return int(np.count_nonzero(self._key >= 0))
 
     def clear(self) -> None:
         self._key[:] = -1
+
+    def stand_still(self, duration_ns: int) -> None:
+        """The robot stood still for `duration_ns`: no remembered point ages meanwhile.
+
+        Odometry's error, and so a remembered point's, grows as the robot moves, not as time
+        passes; and a robot held beside a low obstacle out of the camera's view (its stop
+        zone, a queue) would otherwise forget the obstacle after `max_age` and drive into it.
+        """
+        self._still_ns += max(0, int(duration_ns))
 
     def points(self) -> tuple[F64, F64]:
         """(x, y) in the odometry frame of every remembered point."""
@@ -311,7 +324,7 @@ class ObstacleMemory:
         index, key = self._cells(x, y)
         self._x[index] = x
         self._y[index] = y
-        self._seen_ns[index] = stamp_ns
+        self._seen_ns[index] = stamp_ns - self._still_ns
         self._key[index] = key
 
     def add_scan(
@@ -349,7 +362,7 @@ class ObstacleMemory:
             self.settings.radius**2,
             self.settings.cell,
             self.settings.side,
-            stamp_ns,
+            stamp_ns - self._still_ns,
             self._key,
             self._x,
             self._y,
@@ -394,7 +407,7 @@ class ObstacleMemory:
             robot[0],
             robot[1],
             self.settings.radius**2,
-            now_ns - round(self.settings.max_age * 1e9),
+            now_ns - self._still_ns - round(self.settings.max_age * 1e9),
             sensor.x,
             sensor.y,
             sensor.xx,

@@ -90,6 +90,11 @@ MEMORY_NEIGHBOUR_AGREEMENT = 0.02
 # A remembered point the LiDAR sees (its reading no farther than the point by this much,
 # metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
 LIDAR_SEES_MARGIN = (0.05, 0.02)
+# Slower than this between two scans (m/s, rad/s) the robot stands still: with
+# `memory_ages_while_stopped` false the memory does not age then (`_age_while_moving`).
+# Far above a standing robot's odometry noise, far below any commanded motion.
+STILL_SPEED = 0.01
+STILL_TURN_RATE = 0.02
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
 
@@ -237,6 +242,7 @@ class FusionStream(Generic[T]):
         # matching LiDAR scans (`memory_scan_matching`); every pose the memory uses is C P.
         self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
+        self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
         self.reconfigure(config)
@@ -634,6 +640,7 @@ class FusionStream(Generic[T]):
             self._drop_memory('odometry jumped (reset or relocalisation)')  # and the drift
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
+        self._age_while_moving(memory, scan.stamp_ns, base.pose)
         config = self.config
         slab = (config.min_obstacle_height, config.max_obstacle_height)
         base_to_laser = self.base_to_laser(scan.frame_id)
@@ -757,6 +764,21 @@ class FusionStream(Generic[T]):
         memory.add_dense(
             x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot
         )
+
+    def _age_while_moving(self, memory: ObstacleMemory, stamp_ns: int, pose: PlanarPose) -> None:
+        """Stop the memory's clock for the time since the last scan if odometry says the
+        robot stood still (`memory_ages_while_stopped` false)."""
+        last = self._memory_motion
+        if last is not None and stamp_ns <= last[0]:
+            return  # another LiDAR's older scan: that time is counted already
+        self._memory_motion = (stamp_ns, pose)
+        if self.config.memory_ages_while_stopped or last is None:
+            return
+        seconds = (stamp_ns - last[0]) / 1e9
+        moved = math.hypot(pose.x - last[1].x, pose.y - last[1].y)
+        turned = abs(math.remainder(pose.yaw - last[1].yaw, 2.0 * math.pi))
+        if moved <= STILL_SPEED * seconds and turned <= STILL_TURN_RATE * seconds:
+            memory.stand_still(stamp_ns - last[0])
 
     def _memory_frozen(self, stamp_ns: int) -> None:
         placed = self._memory_placed_ns
