@@ -190,6 +190,37 @@ class FusionConfig(BaseModel):
             '0.01); a drop-off needs a reading 6 sigma behind the floor'
         ),
     )
+    ground_estimate: bool = Field(
+        default=True,
+        description=(
+            'obstacle method: find the floor in every depth frame (the mounting is the prior) '
+            'and measure the slab and drops above it, so a pitching body or a mounting a few '
+            "degrees off does not report the floor; off: heights above the mounting's plane"
+        ),
+    )
+    ground_max_tilt: float = Field(
+        math.radians(6.0),
+        gt=0.0,
+        lt=math.pi / 4,
+        allow_inf_nan=False,
+        description="radians the floor found in a frame may tilt from the mounting's plane",
+    )
+    ground_max_offset: float = Field(
+        0.08,
+        ge=0.0,
+        le=1.0,
+        allow_inf_nan=False,
+        description=(
+            "metres the camera may be above or below the mounting's height over the floor found"
+        ),
+    )
+    ground_smoothing: float = Field(
+        0.5,
+        gt=0.0,
+        le=1.0,
+        allow_inf_nan=False,
+        description='weight of the newest frame in the smoothed floor (1: no smoothing)',
+    )
     camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_y: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_height: float = _metres(0.45, 'camera height above the floor, metres')

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
+from scanfuse.convert.ground import GroundPlane
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import InputError
@@ -174,8 +175,12 @@ class FusionPipeline:
         camera: CameraModel,
         extrinsics: Extrinsics | None = None,
         motion: PlanarMotion = IDENTITY_MOTION,
+        ground: GroundPlane | None = None,
     ) -> FusedResult:
         """Fuse one LiDAR scan with one depth image (uint16 mm or float32 m).
+
+        `ground` is the floor the obstacle method measures heights from (`FusionStream`
+        estimates it per frame); None: the mounting's plane.
 
         `motion` takes points from the LiDAR frame at the image's stamp to the LiDAR frame at
         the scan's stamp (`FusionStream` finds it from odometry). The obstacle method moves
@@ -187,7 +192,10 @@ class FusionPipeline:
             check_motion(motion)
         start = time.perf_counter()
         if self.config.method is Method.OBSTACLE:
-            depth_scan = self._projector(camera, extrinsics, lidar.grid).scan(depth, motion)
+            projector = self._projector(camera, extrinsics, lidar.grid)
+            depth_scan = projector.scan(
+                depth, motion, ground or GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
+            )
             converted = time.perf_counter()
             # The projector may be one of a grid within tolerance: label with the LiDAR's own.
             on_lidar_grid = depth_scan.with_ranges(

@@ -42,6 +42,8 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
+from scanfuse.config import Method
+from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.extras import ExtraSources
 from scanfuse.fragments import FragmentAssembler
@@ -264,6 +266,10 @@ class FusionStream(Generic[T]):
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
         self.extras = ExtraSources(config)
+        self.ground = (
+            GroundTracker(GroundSettings.from_config(config)) if (config.ground_estimate) else None
+        )
+        self._ground_frame_ns: int | None = None
         self.assembler: FragmentAssembler[T] | None = (
             FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
         )
@@ -534,7 +540,10 @@ class FusionStream(Generic[T]):
         if motion is None:
             return self._pass(pending, lidar, deskewed, Passed.NO_MOTION)
         try:
-            result = self.pipeline.fuse(lidar, frame.depth, frame.camera, choice.extrinsics, motion)
+            ground, extrinsics = self._on_ground(frame, choice.extrinsics)
+            result = self.pipeline.fuse(
+                lidar, frame.depth, frame.camera, choice.extrinsics, motion, ground
+            )
         except ScanfuseError as err:
             self.note_malformed('fusion', err)
             return self._pass(pending, lidar, deskewed, Passed.FUSION_FAILED)
@@ -552,7 +561,24 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=result.timings,
         )
-        return self._remember(self._with_extras(output), frame, choice.extrinsics)
+        return self._remember(self._with_extras(output), frame, extrinsics)
+
+    def _on_ground(
+        self, frame: DepthFrame, extrinsics: Extrinsics
+    ) -> tuple[GroundPlane | None, Extrinsics]:
+        """The floor of `frame` (`ground.GroundTracker`, once per frame) and the mounting
+        moved onto it (for the memory's slab); None and the mounting when it is off."""
+        if self.ground is None or self.config.method is not Method.OBSTACLE:
+            return None, extrinsics
+        prior = GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
+        if frame.stamp_ns != self._ground_frame_ns or self.ground.estimate is None:
+            self.ground.update(frame.depth, frame.camera, prior)
+            self._ground_frame_ns = frame.stamp_ns
+        plane = self.ground.estimate or prior
+        on_ground = replace(
+            extrinsics, base_to_camera_optical=plane.mounting(extrinsics.base_to_camera_optical)
+        )
+        return plane, on_ground
 
     def _widen(self, lidar: Scan) -> Scan:
         """With `full_circle`, the first LiDAR's scan on a 360-degree grid (`scan.full_circle`)."""

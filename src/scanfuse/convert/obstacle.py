@@ -68,6 +68,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from scanfuse.camera import MILLIMETRE
+from scanfuse.convert.ground import GroundPlane
 from scanfuse.errors import InputError
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.scan import TWO_PI, AngleGrid, Scan, to_rep117
@@ -92,6 +93,10 @@ UINT16_MAX = 65535
 # The slot lookup has 16 / angle_increment bins of 28 bytes (7.3 MB at this limit): the
 # finest real 2D LiDARs read every 0.01-0.1 deg (36 000 - 3600 a turn), this allows 103 000.
 FINEST_INCREMENT = 16.0 / (1 << 18)
+# A new ground plane rebuilds the height tables only when some height within range_max of
+# the camera moves by more than this (metres): a 0.1 deg change at 3 m. Below, the scan is
+# the old plane's (a steady estimate costs nothing).
+GROUND_TOLERANCE = 0.005
 # Most threads `ObstacleProjector` splits a frame over.
 MAX_THREADS = 64
 # A drop needs a reading this many noise sigmas (depth_noise Z0^2) behind the floor: a
@@ -612,6 +617,8 @@ class ObstacleProjector:
         drops: DropLimits | None = None,
     ) -> None:
         _check_limits(min_obstacle_height, max_obstacle_height, range_min, range_max)
+        self.min_obstacle_height = float(min_obstacle_height)
+        self.max_obstacle_height = float(max_obstacle_height)
         if not 1 <= threads <= MAX_THREADS:
             msg = f'threads must be 1 to {MAX_THREADS} (1: no thread pool), got {threads}'
             raise InputError(msg)
@@ -641,8 +648,6 @@ class ObstacleProjector:
         turn = TWO_PI / abs(lidar_grid.angle_increment)
         x_table, y_table = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
         base_rotation = extrinsics.base_to_camera_optical.rotation_matrix
-        height_row = base_rotation[2]
-        b_z = extrinsics.base_to_camera_optical.translation[2]
         laser = extrinsics.laser_to_camera_optical
         rotation = laser.rotation_matrix
         b_x, b_y = laser.translation[0], laser.translation[1]
@@ -663,33 +668,23 @@ class ObstacleProjector:
         # (per tile for the arcs), so banding changes no value, but the temporaries stay in
         # cache and are reused instead of faulting in fresh pages of a full-frame array each.
         band = tile * max(1, -(-65_536 // (tile * shape[1])))
+        self._band = band
+        self._drop_horizontal = np.empty(pixels if drops is not None else 0, dtype=np.float32)
+        self.ground = GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
+        self.ground_refreshes = 0  # times the height tables were rebuilt for a new ground
         for top in range(0, shape[0], band):
             rows = min(band, shape[0] - top)
             part = slice(top * shape[1], (top + rows) * shape[1])
             x_n = x_table[part].astype(np.float64)
             y_n = y_table[part].astype(np.float64)
-            a_z = height_row[0] * x_n + height_row[1] * y_n + height_row[2]
             a_x = rotation[0, 0] * x_n + rotation[0, 1] * y_n + rotation[0, 2]
             a_y = rotation[1, 0] * x_n + rotation[1, 1] * y_n + rotation[1, 2]
-            lo, hi = _depth_interval(
-                a_z,
-                b_z,
-                min_obstacle_height=min_obstacle_height,
-                max_obstacle_height=max_obstacle_height,
-                range_min=range_min,
-                range_max=range_max,
-            )
-            if drops is None:
-                drop_lo = np.full(a_z.shape, np.inf)
-                drop_hi, floor = -drop_lo, np.full(a_z.shape, np.nan)
-            else:
-                horizontal = np.hypot(
+            if drops is not None:
+                self._drop_horizontal[part] = np.hypot(
                     base_rotation[0, 0] * x_n + base_rotation[0, 1] * y_n + base_rotation[0, 2],
                     base_rotation[1, 0] * x_n + base_rotation[1, 1] * y_n + base_rotation[1, 2],
                 )
-                drop_lo, drop_hi, floor = _drop_interval(
-                    a_z, b_z, horizontal, drops, self.range_min, self.range_max
-                )
+            lo, hi, drop_lo, drop_hi, floor = self._height_intervals(part, x_n, y_n, self.ground)
             with np.errstate(invalid='ignore'):
                 sees_slab = lo <= hi
                 # A pixel that can see a drop sees up to its floor crossing.
@@ -702,16 +697,11 @@ class ObstacleProjector:
             first, last = _pixel_arcs(near, far, lidar_grid)
             nearest_reach = min(nearest_reach, _segment_reach(near, far))
             tile_arcs.append(_tile_arcs(first, last, (rows, shape[1]), tile, turn))
-            metres = (lo, hi, a_x, a_y, drop_lo, floor)
-            for table, values in zip(self._metres, metres, strict=True):
-                table[part] = values
-            lo_mm, hi_mm = _millimetre_interval(lo, hi)
-            millimetres: tuple[npt.NDArray[Any], ...] = (
-                *(lo_mm, hi_mm, a_x * MILLIMETRE, a_y * MILLIMETRE),
-                *(_millimetre_interval(drop_lo, drop_hi)[0], floor / MILLIMETRE),
-            )
-            for table, values in zip(self._millimetres, millimetres, strict=True):
-                table[part] = values
+            self._metres[2][part] = a_x
+            self._metres[3][part] = a_y
+            self._millimetres[2][part] = a_x * MILLIMETRE
+            self._millimetres[3][part] = a_y * MILLIMETRE
+            self._store_heights(part, lo, hi, drop_lo, drop_hi, floor)
             typical[top : top + rows] = _row_typical(lo.reshape(rows, -1), hi.reshape(rows, -1))
         tile_first = np.concatenate([arcs[0] for arcs in tile_arcs])
         tile_last = np.concatenate([arcs[1] for arcs in tile_arcs])
@@ -762,16 +752,82 @@ class ObstacleProjector:
             else (0, camera.width)
         )
         self._bands = _column_bands(camera.width, self.threads, block, columns)
-        self._block_extremes = {
+        self._block_extremes = self._extremes()
+        self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
+        self._bound = np.empty((self.threads, 2 * self.lookup.first.size), dtype=np.float32)
+        self._warm_up()
+
+    def _height_intervals(
+        self, part: slice, x_n: F64, y_n: F64, ground: GroundPlane
+    ) -> tuple[F64, F64, F64, F64, F64]:
+        """Per pixel of `part` the slab interval [lo, hi], the drop interval [drop_lo,
+        drop_hi] and the floor crossing depth, for heights above `ground`."""
+        normal = ground.normal
+        a_z = normal[0] * x_n + normal[1] * y_n + normal[2]
+        lo, hi = _depth_interval(
+            a_z,
+            ground.offset,
+            min_obstacle_height=self.min_obstacle_height,
+            max_obstacle_height=self.max_obstacle_height,
+            range_min=self.range_min,
+            range_max=self.range_max,
+        )
+        if self.drops is None:
+            drop_lo = np.full(a_z.shape, np.inf)
+            return lo, hi, drop_lo, -drop_lo, np.full(a_z.shape, np.nan)
+        horizontal = self._drop_horizontal[part].astype(np.float64)
+        drop_lo, drop_hi, floor = _drop_interval(
+            a_z, ground.offset, horizontal, self.drops, self.range_min, self.range_max
+        )
+        return lo, hi, drop_lo, drop_hi, floor
+
+    def _store_heights(
+        self, part: slice, lo: F64, hi: F64, drop_lo: F64, drop_hi: F64, floor: F64
+    ) -> None:
+        """Write the height tables of `part` (metres and millimetres)."""
+        for index, values in ((0, lo), (1, hi), (4, drop_lo), (5, floor)):
+            self._metres[index][part] = values
+        lo_mm, hi_mm = _millimetre_interval(lo, hi)
+        self._millimetres[0][part] = lo_mm
+        self._millimetres[1][part] = hi_mm
+        self._millimetres[4][part] = _millimetre_interval(drop_lo, drop_hi)[0]
+        self._millimetres[5][part] = floor / MILLIMETRE
+
+    def _extremes(self) -> dict[np.dtype[Any], tuple[npt.NDArray[Any], ...]]:
+        """Per table dtype the blocks' least lo, greatest hi and least drop_lo
+        (`_block_extremes`): the kernel skips a block whose depths are all outside."""
+        shape = (self.camera.height, self.camera.width)
+        block = self._kernel.BLOCK if self._kernel is not None else self.camera.width
+        return {
             np.dtype(tables[0].dtype): (
                 *_block_extremes(tables[0], tables[1], shape, self._bands, block),
                 _block_extremes(tables[4], tables[4], shape, self._bands, block)[0],
             )
             for tables in (self._millimetres, self._metres)
         }
-        self._part_nearest = np.empty((self.threads, *self._nearest.shape), dtype=np.float32)
-        self._bound = np.empty((self.threads, 2 * self.lookup.first.size), dtype=np.float32)
-        self._warm_up()
+
+    def use_ground(self, ground: GroundPlane) -> bool:
+        """Measure heights above `ground` from now on; True when the tables were rebuilt.
+
+        Within `GROUND_TOLERANCE` of the plane the tables hold (no height within
+        range_max of the camera moves by more), the tables stay: a steady estimate costs
+        nothing, and a flat floor with the right mounting gives exactly the mounting's scan.
+        The slab's view (`in_view`) and the order rows are read in stay the mounting's.
+        """
+        if ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE:
+            return False
+        x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
+        width = self.camera.width
+        for top in range(0, self.camera.height, self._band):
+            rows = min(self._band, self.camera.height - top)
+            part = slice(top * width, (top + rows) * width)
+            x_n = x_table[part].astype(np.float64)
+            y_n = y_table[part].astype(np.float64)
+            self._store_heights(part, *self._height_intervals(part, x_n, y_n, ground))
+        self._block_extremes = self._extremes()
+        self.ground = ground
+        self.ground_refreshes += 1
+        return True
 
     def _seen(self, depth: npt.NDArray[Any]) -> Mask:
         """`ViewCoverage.seen` of this frame's valid tile centres, compiled when it can be."""
@@ -918,7 +974,12 @@ class ObstacleProjector:
         turn, margin = self._margin(motion)
         return self._least_gap <= margin + abs(turn)
 
-    def scan(self, depth: npt.NDArray[np.generic], motion: PlanarMotion = IDENTITY_MOTION) -> Scan:
+    def scan(
+        self,
+        depth: npt.NDArray[np.generic],
+        motion: PlanarMotion = IDENTITY_MOTION,
+        ground: GroundPlane | None = None,
+    ) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
 
         `motion` takes points from the LiDAR frame at the image's stamp to the LiDAR frame
@@ -930,9 +991,14 @@ class ObstacleProjector:
         the slot and fewer than `min_points` points in the slab; NaN outside the camera's
         view or where it has no valid depth; REP-117 -Inf for an obstacle nearer than
         range_min, +Inf beyond range_max.
+        `ground` (the frame's floor, `ground.GroundTracker`) is where heights are measured
+        from (`use_ground`); None: the plane the tables hold (the mounting's, until a ground
+        is given).
         `frame_id` and `stamp_ns` are left for the caller (the LiDAR's).
         """
         self.camera.check_depth(depth)
+        if ground is not None:
+            self.use_ground(ground)
         if not all(map(math.isfinite, (motion.cos, motion.sin, motion.tx, motion.ty))):
             msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
             raise InputError(msg)

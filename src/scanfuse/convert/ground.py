@@ -1,0 +1,290 @@
+"""Where the floor really is, from every depth frame: the mounting is a prior, not the truth.
+
+A robot that dips 2 deg when it brakes, or a camera whose pitch was measured 2 deg off,
+moves the floor 10 cm at 3 m: with heights measured from the mounting's plane the floor
+there is an obstacle (or a drop). `GroundTracker` finds the floor plane in each frame, in
+the camera's optical frame, with the mounting's plane as the prior:
+
+- a fixed sample of pixels (`GroundSample`, about `samples` of them, on a regular grid of
+  the pixels that look below the horizon) is back-projected; only points that an
+  admissible plane could hold are candidates: within `max_offset` + r sin(`max_tilt`) of
+  the prior's plane, r their distance from the camera, and at most `reach` metres away
+  (the floor near the robot, not the far end of a ramp);
+- RANSAC over those candidates (hypotheses: the prior, the last estimate and random
+  triples; seeded, so a frame gives the same plane every time) keeps the admissible plane
+  (normal within `max_tilt` of the prior's, offset within `max_offset`) with the best score:
+  points within the inlier distance (`inlier_distance` + 3 sigma of the depth noise) minus
+  points more than that below it. The floor is the lowest large surface the robot stands
+  on: a box top or a step is a plane with the floor under it, and loses;
+- least squares on the winner's inliers, twice, checked against the bounds again;
+- too few inliers (fewer than `min_points`) or inliers along a line (their spread across
+  either in-plane axis below `min_spread`: a strip of floor under a wall fixes only one
+  tilt) keep the last estimate: the frame falls back, counted;
+- the estimate is smoothed over frames (`smoothing`: the weight of the new frame).
+
+The heights of the collision slab and of drops are then measured above this plane
+(`ObstacleProjector.scan(ground=...)`). On a flat floor with the right mounting the
+estimate equals the prior within the depth's rounding, and the projector keeps its tables.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from scanfuse.camera import MILLIMETRE
+from scanfuse.convert import ground_kernel
+from scanfuse.errors import InputError
+from scanfuse.transforms import Transform
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from scanfuse.camera import CameraModel
+    from scanfuse.config import FusionConfig
+
+    F64 = npt.NDArray[np.float64]
+
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class GroundPlane:
+    """The floor seen from a camera: a point P of the optical frame is `normal . P + offset`
+    metres above it (`normal` a unit vector, pointing up; `offset` the camera's height)."""
+
+    normal: tuple[float, float, float]
+    offset: float
+
+    @classmethod
+    def of_mounting(cls, base_to_camera_optical: Transform) -> GroundPlane:
+        """The plane base z = 0 of a mounting (the prior): the base's up axis, optical."""
+        row = base_to_camera_optical.rotation_matrix[2]
+        return cls(
+            (float(row[0]), float(row[1]), float(row[2])),
+            float(base_to_camera_optical.translation[2]),
+        )
+
+    @property
+    def vector(self) -> F64:
+        return np.array(self.normal, dtype=np.float64)
+
+    def tilt_from(self, other: GroundPlane) -> float:
+        """Angle between the two planes' normals, radians."""
+        cosine = float(np.clip(self.vector @ other.vector, -1.0, 1.0))
+        return math.acos(cosine)
+
+    def height_change(self, other: GroundPlane, reach: float) -> float:
+        """An upper bound of how much a point's height differs between the two planes, for
+        points within `reach` metres of the camera."""
+        difference = self.vector - other.vector
+        return abs(self.offset - other.offset) + reach * float(np.linalg.norm(difference))
+
+    @property
+    def camera_pitch(self) -> float:
+        """The camera's pitch above this plane (positive looks down), as `fit_floor` reads it."""
+        return math.asin(max(-1.0, min(1.0, -self.normal[2])))
+
+    @property
+    def camera_roll(self) -> float:
+        """The camera's roll above this plane (positive: its right side down)."""
+        return math.atan2(-self.normal[0], -self.normal[1])
+
+    def mounting(self, base_to_camera_optical: Transform) -> Transform:
+        """`base_to_camera_optical` turned and lifted so that its base z = 0 is this plane.
+
+        The least rotation about the base's origin that takes this plane's normal (in the
+        base frame) to the base's up axis: the camera's yaw and its x, y stay the mounting's.
+        """
+        rotation = base_to_camera_optical.rotation_matrix
+        up = rotation @ self.vector  # the estimated up axis in the prior's base frame
+        axis = np.cross(up, _UP)
+        sine, cosine = float(np.linalg.norm(axis)), float(up @ _UP)
+        turn = np.eye(3)
+        if sine > 1e-15:
+            k = axis / sine
+            skew = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+            turn = np.eye(3) + sine * skew + (1.0 - cosine) * (skew @ skew)
+        matrix = np.eye(4)
+        matrix[:3, :3] = turn @ rotation
+        moved = turn @ np.asarray(base_to_camera_optical.translation)
+        matrix[:3, 3] = (moved[0], moved[1], self.offset)
+        return Transform.from_matrix(matrix)
+
+
+def _plane(normal: F64, offset: float) -> GroundPlane:
+    return GroundPlane((float(normal[0]), float(normal[1]), float(normal[2])), float(offset))
+
+
+@dataclass(frozen=True)
+class GroundSettings:
+    """How the floor is found in each frame (see the module docstring)."""
+
+    max_tilt: float = math.radians(6.0)  # radians the floor may tilt from the mounting's
+    max_offset: float = 0.08  # metres the camera may be above or below the mounting's height
+    reach: float = 3.0  # metres from the camera: farther points are not used
+    inlier_distance: float = 0.02  # metres, plus 3 sigma of the depth noise at the point
+    depth_noise: float = 0.01  # sigma = depth_noise * Z^2 (1/m)
+    min_points: int = 80  # inliers needed for an estimate
+    min_spread: float = 0.1  # metres: standard deviation of the inliers along each plane axis
+    smoothing: float = 0.5  # weight of the new frame's plane
+    samples: int = 1500  # pixels looked at per frame
+    hypotheses: int = 40  # random triples tried per frame
+
+    def __post_init__(self) -> None:
+        checks = (
+            ('ground_max_tilt', self.max_tilt, 0.0 < self.max_tilt < math.pi / 4),
+            ('ground_max_offset', self.max_offset, 0.0 <= self.max_offset <= 1.0),
+            ('ground_smoothing', self.smoothing, 0.0 < self.smoothing <= 1.0),
+            ('reach', self.reach, self.reach > 0.0),
+            ('inlier_distance', self.inlier_distance, self.inlier_distance > 0.0),
+            ('depth_noise', self.depth_noise, self.depth_noise >= 0.0),
+            ('min_points', self.min_points, self.min_points >= 3),
+            ('min_spread', self.min_spread, self.min_spread >= 0.0),
+            ('samples', self.samples, self.samples >= 3),
+            ('hypotheses', self.hypotheses, self.hypotheses >= 0),
+        )
+        for name, value, valid in checks:  # (FusionConfig checks what users set)
+            if not (valid and math.isfinite(value)):
+                msg = f'{name} = {value} is out of its range (see GroundSettings)'
+                raise InputError(msg)
+
+    @classmethod
+    def from_config(cls, config: FusionConfig) -> GroundSettings:
+        """The settings `config` gives (reach: the camera's range_max)."""
+        return cls(
+            max_tilt=config.ground_max_tilt,
+            max_offset=config.ground_max_offset,
+            reach=config.range_max,
+            depth_noise=config.depth_noise,
+            smoothing=config.ground_smoothing,
+        )
+
+
+@dataclass(frozen=True)
+class GroundSample:
+    """The pixels one camera's ground estimate looks at, their rays (x_n, y_n, 1), and the
+    numbers in [0, 1) that pick each RANSAC hypothesis's three candidates (seeded: a frame
+    gives the same plane every time)."""
+
+    indices: npt.NDArray[np.intp]
+    rays: F64
+    draws: F64
+
+    @classmethod
+    def build(
+        cls, camera: CameraModel, prior: GroundPlane, samples: int, hypotheses: int
+    ) -> GroundSample:
+        """About `samples` pixels on a regular grid, of those whose ray looks down at all
+        (ahead of a camera pitched by up to `max_tilt` more, the floor is too far to matter)."""
+        x_n, y_n = (np.asarray(c, dtype=np.float64).ravel() for c in camera.normalized_coordinates)
+        stride = max(1, math.floor(math.sqrt(camera.width * camera.height / samples)))
+        rows = np.arange(stride // 2, camera.height, stride)
+        columns = np.arange(stride // 2, camera.width, stride)
+        grid = (rows[:, None] * camera.width + columns[None, :]).ravel()
+        rays = np.stack([x_n[grid], y_n[grid], np.ones(grid.size)], axis=1)
+        with np.errstate(invalid='ignore'):
+            down = (rays @ prior.vector < 0.0) & np.isfinite(rays).all(axis=1)
+        draws = np.random.default_rng(0).random((hypotheses, 3))
+        return cls(indices=grid[down], rays=np.ascontiguousarray(rays[down]), draws=draws)
+
+
+@dataclass
+class GroundCounts:
+    """How the frames' ground estimates went."""
+
+    frames: int = 0
+    estimated: int = 0
+    fell_back: int = 0  # too little floor seen: the last estimate (or the prior) kept
+    last_reason: str = ''
+
+
+# Why `ground_kernel.fit` found no floor, by its status.
+_REASONS = {
+    ground_kernel.FEW_CANDIDATES: 'floor candidates',
+    ground_kernel.FEW_INLIERS: 'floor points',
+}
+
+
+def fit_ground(
+    depth: npt.NDArray[np.generic],
+    sample: GroundSample,
+    prior: GroundPlane,
+    start: GroundPlane,
+    settings: GroundSettings,
+) -> tuple[GroundPlane | None, str]:
+    """The floor plane of one depth image, or None and why (see the module docstring)."""
+    flat = depth.ravel()
+    if flat.dtype != np.uint16:
+        flat = flat.astype(np.float32, copy=False)
+    scale = MILLIMETRE if flat.dtype == np.uint16 else 1.0
+    out = np.empty(7)
+    ground_kernel.fit(
+        flat, scale, sample.indices, sample.rays, np.array([*prior.normal, prior.offset]),
+        np.array([*start.normal, start.offset]), settings.max_offset, settings.max_tilt,
+        settings.reach, settings.inlier_distance, settings.depth_noise, sample.draws,
+        settings.min_points, settings.min_spread, out,
+    )  # fmt: skip
+    status = int(out[6])
+    if status == ground_kernel.OK:
+        return GroundPlane((float(out[0]), float(out[1]), float(out[2])), float(out[3])), ''
+    if status in _REASONS:
+        return None, f'{int(out[4])} {_REASONS[status]}, fewer than {settings.min_points}'
+    if status == ground_kernel.ALONG_A_LINE:
+        return None, (
+            f'the floor points lie along a line (spread {out[5]:.2f} m across it, less than '
+            f'{settings.min_spread} m)'
+        )
+    return None, 'the fitted floor lies outside ground_max_tilt / ground_max_offset'
+
+
+@dataclass
+class GroundTracker:
+    """One camera's floor, frame by frame: `update` gives the plane to measure heights from."""
+
+    settings: GroundSettings
+    counts: GroundCounts = field(default_factory=GroundCounts)
+    _estimate: GroundPlane | None = None
+    _prior: GroundPlane | None = None
+    _sample: GroundSample | None = None
+    _sample_key: tuple[CameraModel, GroundPlane] | None = None
+
+    @property
+    def estimate(self) -> GroundPlane | None:
+        """The smoothed plane (None before the first frame)."""
+        return self._estimate
+
+    def update(
+        self, depth: npt.NDArray[np.generic], camera: CameraModel, prior: GroundPlane
+    ) -> GroundPlane:
+        """The smoothed floor plane after this frame (the prior until floor is seen)."""
+        if (camera, prior) != self._sample_key:
+            self._sample = GroundSample.build(
+                camera, prior, self.settings.samples, self.settings.hypotheses
+            )
+            self._sample_key = (camera, prior)
+            if self._prior != prior:
+                self._estimate = None  # a new mounting: what was learnt of the old is void
+            self._prior = prior
+        assert self._sample is not None
+        camera.check_depth(depth)
+        self.counts.frames += 1
+        start = self._estimate or prior
+        found, reason = fit_ground(depth, self._sample, prior, start, self.settings)
+        if found is None:
+            self.counts.fell_back += 1
+            self.counts.last_reason = reason
+            self._estimate = start
+            return start
+        self.counts.estimated += 1
+        if self._estimate is None:
+            self._estimate = found
+        else:
+            weight = self.settings.smoothing
+            normal = (1.0 - weight) * self._estimate.vector + weight * found.vector
+            offset = (1.0 - weight) * self._estimate.offset + weight * found.offset
+            self._estimate = _plane(normal / np.linalg.norm(normal), offset)
+        return self._estimate
