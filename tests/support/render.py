@@ -131,3 +131,36 @@ def square_room_ranges(origin, yaw: float, angles: np.ndarray, half: float = 2.0
         tx = np.where(dx > 0, (half - origin[0]) / dx, (-half - origin[0]) / dx)
         ty = np.where(dy > 0, (half - origin[1]) / dy, (-half - origin[1]) / dy)
     return np.minimum(np.abs(tx), np.abs(ty))
+
+
+def slope_depth(
+    camera: CameraModel,
+    optical_pose: Transform,
+    *,
+    start: float,
+    rise: float,
+    length: float = math.inf,
+    boxes: Iterable[Bounds] = (),
+) -> np.ndarray:
+    """Depth (metres, inf: none) of a floor z = 0 that from x = `start` on rises by `rise`
+    metres per metre (falls, if negative) for `length` metres, then runs level; and `boxes`.
+
+    Each piece of ground is a plane met where the ray crosses it inside the piece's x range.
+    """
+    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
+    origin = np.asarray(optical_pose.translation)
+    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1) @ optical_pose.rotation_matrix.T
+    end = start + length
+    top = rise * length if math.isfinite(length) else 0.0
+    # (x from, x to, height at x from, slope) of each piece
+    pieces = [(-math.inf, start, 0.0, 0.0), (start, end, 0.0, rise), (end, math.inf, top, 0.0)]
+    depth = box_depth(camera, optical_pose, boxes, floor=False)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        for x_from, x_to, z_from, slope in pieces:
+            # origin_z + t r_z = z_from + slope (origin_x + t r_x - x_from)
+            rise_to_origin = slope * (origin[0] - x_from) if slope else 0.0
+            t = (z_from + rise_to_origin - origin[2]) / (rays[..., 2] - slope * rays[..., 0])
+            x = origin[0] + t * rays[..., 0]
+            hit = (t > 0.0) & (x >= x_from) & (x <= x_to) & (t < depth)
+            depth = np.where(hit, t, depth)
+    return depth

@@ -24,6 +24,8 @@ from scanfuse.compiled import compiled
 OK, FEW_CANDIDATES, FEW_INLIERS, ALONG_A_LINE, OUT_OF_BOUNDS = 0, 1, 2, 3, 4
 # Hypotheses are scored on every SCORE_STRIDE-th candidate; the refinement uses them all.
 SCORE_STRIDE = 2
+# Metres above the plane (beyond the depth's noise) an inlier of the refinement may lie.
+ABOVE = 0.003
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -43,10 +45,15 @@ def _determinant(m: Any) -> float:
     return value
 
 
-def _refine(points: Any, tolerance: Any, count: int, plane: Any, out: Any) -> int:
+def _refine(points: Any, tolerance: Any, noise: Any, count: int, plane: Any, out: Any) -> int:
     """Least squares on the inliers of `plane` (normal, offset): the refined plane into
     `plane`, the least spread of the inliers along the plane's axes into out[5]; returns the
-    number of inliers."""
+    number of inliers.
+
+    An inlier lies at most its `tolerance` below the plane but only its depth noise
+    (`noise`, 3 sigma) plus `ABOVE` above it: the floor is the lowest surface, and a slope
+    or an obstacle's foot that rises out of it would otherwise tilt the fit towards itself
+    a little more with every refinement."""
     normal = plane[:3].copy()
     first, second = axes(normal)
     # Normal equations of h = a + b u + c v, and the (u, v) moments for the spread.
@@ -56,7 +63,7 @@ def _refine(points: Any, tolerance: Any, count: int, plane: Any, out: Any) -> in
     for i in range(count):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         h = normal[0] * x + normal[1] * y + normal[2] * z + plane[3]
-        if abs(h) > tolerance[i]:
+        if h < -tolerance[i] or h > noise[i] + ABOVE:
             continue
         u = first[0] * x + first[1] * y + first[2] * z
         v = second[0] * x + second[1] * y + second[2] * z
@@ -124,6 +131,7 @@ def _fit(
     size = min(indices.size, rays.shape[0])
     points = np.empty((size, 3))
     tolerance = np.empty(size)
+    noise_band = np.empty(size)
     sin_tilt, cos_tilt = math.sin(max_tilt), math.cos(max_tilt)
     count = 0
     for i in range(size):
@@ -139,12 +147,14 @@ def _fit(
             continue
         slope = prior[0] * rays[i, 0] + prior[1] * rays[i, 1] + prior[2]
         # Noise along the ray moves the height by |slope| per metre of depth.
-        allowed = inlier_distance + 3.0 * noise * z * z * abs(slope)
+        spread = 3.0 * noise * z * z * abs(slope)
+        allowed = inlier_distance + spread
         height = slope * z + prior[3]
         if abs(height) > max_offset + distance * sin_tilt + allowed:
             continue
         points[count, 0], points[count, 1], points[count, 2] = x, y, z
         tolerance[count] = allowed
+        noise_band[count] = spread
         count += 1
     out[:] = 0.0
     out[4] = count
@@ -194,7 +204,7 @@ def _fit(
         return
     inliers = 0
     for _ in range(3):
-        inliers = refine(points, tolerance, count, best, out)
+        inliers = refine(points, tolerance, noise_band, count, best, out)
         if inliers < min_points:
             out[4] = inliers
             out[6] = FEW_INLIERS
