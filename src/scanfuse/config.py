@@ -221,6 +221,17 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description='weight of the newest frame in the smoothed floor (1: no smoothing)',
     )
+    max_slope: float = Field(
+        math.atan(1.0 / 8.0),
+        ge=0.0,
+        lt=math.pi / 4,
+        allow_inf_nan=False,
+        description=(
+            'obstacle method with ground_estimate: radians of the steepest ground that is '
+            'floor (a ramp, up or down; default 1:8); steeper ground, steps and drops are not; '
+            '0: the floor is one plane'
+        ),
+    )
     camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_y: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_height: float = _metres(0.45, 'camera height above the floor, metres')

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
-from scanfuse.convert.ground import GroundPlane
+from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import InputError
@@ -176,11 +176,12 @@ class FusionPipeline:
         extrinsics: Extrinsics | None = None,
         motion: PlanarMotion = IDENTITY_MOTION,
         ground: GroundPlane | None = None,
+        profile: GroundProfile | None = None,
     ) -> FusedResult:
         """Fuse one LiDAR scan with one depth image (uint16 mm or float32 m).
 
         `ground` is the floor the obstacle method measures heights from (`FusionStream`
-        estimates it per frame); None: the mounting's plane.
+        estimates it per frame); None: the mounting's plane. `profile`: its ramps.
 
         `motion` takes points from the LiDAR frame at the image's stamp to the LiDAR frame at
         the scan's stamp (`FusionStream` finds it from odometry). The obstacle method moves
@@ -194,7 +195,10 @@ class FusionPipeline:
         if self.config.method is Method.OBSTACLE:
             projector = self._projector(camera, extrinsics, lidar.grid)
             depth_scan = projector.scan(
-                depth, motion, ground or GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
+                depth,
+                motion,
+                ground or GroundPlane.of_mounting(extrinsics.base_to_camera_optical),
+                profile,
             )
             converted = time.perf_counter()
             # The projector may be one of a grid within tolerance: label with the LiDAR's own.

@@ -541,8 +541,9 @@ class FusionStream(Generic[T]):
             return self._pass(pending, lidar, deskewed, Passed.NO_MOTION)
         try:
             ground, extrinsics = self._on_ground(frame, choice.extrinsics)
+            profile = None if self.ground is None else self.ground.profile
             result = self.pipeline.fuse(
-                lidar, frame.depth, frame.camera, choice.extrinsics, motion, ground
+                lidar, frame.depth, frame.camera, choice.extrinsics, motion, ground, profile
             )
         except ScanfuseError as err:
             self.note_malformed('fusion', err)

@@ -133,6 +133,7 @@ class GroundSettings:
     smoothing: float = 0.5  # weight of the new frame's plane
     samples: int = 1500  # pixels looked at per frame
     hypotheses: int = 40  # random triples tried per frame
+    max_slope: float = math.atan(1.0 / 8.0)  # radians: steeper ground is not floor; 0: one plane
 
     def __post_init__(self) -> None:
         checks = (
@@ -146,6 +147,7 @@ class GroundSettings:
             ('min_spread', self.min_spread, self.min_spread >= 0.0),
             ('samples', self.samples, self.samples >= 3),
             ('hypotheses', self.hypotheses, self.hypotheses >= 0),
+            ('max_slope', self.max_slope, 0.0 <= self.max_slope < math.pi / 4),
         )
         for name, value, valid in checks:  # (FusionConfig checks what users set)
             if not (valid and math.isfinite(value)):
@@ -161,6 +163,7 @@ class GroundSettings:
             reach=config.range_max,
             depth_noise=config.depth_noise,
             smoothing=config.ground_smoothing,
+            max_slope=config.max_slope,
         )
 
 
@@ -241,6 +244,94 @@ def fit_ground(
     return None, 'the fitted floor lies outside ground_max_tilt / ground_max_offset'
 
 
+# Sampled image columns of the profile, at most; rows: every ROW_STRIDE-th of this many.
+PROFILE_COLUMNS = 48
+PROFILE_ROWS = 240
+# Metres of horizontal distance per bin of the profile.
+PROFILE_BIN = 0.15
+# Metres the profile must leave the plane by, over three bins in a row, to count (below, the
+# plane holds: a flat floor's noise, a bin of an obstacle's foot make no profile, and the
+# tables stay).
+PROFILE_DEADBAND = 0.02
+
+
+@dataclass(frozen=True, eq=False)
+class GroundProfile:
+    """Ground that is not one plane (a ramp): its height above `plane` per sampled image
+    column (`columns`) and bin of `bin_size` metres of horizontal distance from the camera.
+
+    Built by `ground_kernel.profile` (see there); `ground_under` gives every pixel the
+    ground's height where its line of sight meets it (`ground_kernel.crossings`).
+    """
+
+    plane: GroundPlane
+    columns: npt.NDArray[np.int64]
+    heights: F64  # columns x bins, metres above the plane
+    bin_size: float
+
+    def axes(self) -> tuple[F64, F64]:
+        return _plane_axes(self.plane)
+
+    def ground_under(self, camera: CameraModel, far: float, levels: tuple[float, ...]) -> F64:
+        """Per level L and pixel (flattened) the ground's height above the plane under the
+        point of the pixel's line of sight that is L above the ground (L = 0: where it meets
+        the ground), or under its point at depth `far` (levels x pixels)."""
+        x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
+        forward, left = self.axes()
+        lifts = np.empty((len(levels), x_n.size))
+        ground_kernel.crossings(
+            x_n, y_n, camera.width, np.array([*self.plane.normal, self.plane.offset]),
+            forward, left, self.columns, self.heights, self.bin_size, far,
+            np.array(levels, dtype=np.float64), lifts,
+        )  # fmt: skip
+        return lifts
+
+
+def _plane_axes(plane: GroundPlane) -> tuple[F64, F64]:
+    """Horizontal unit axes of the plane: the optical axis's direction on it, and its left."""
+    normal = plane.vector
+    forward = _UP - (_UP @ normal) * normal  # _UP is the optical z axis here
+    length = float(np.linalg.norm(forward))
+    if length < 1e-9:  # the camera looks straight down: any horizontal axis will do
+        forward = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
+        length = float(np.linalg.norm(forward))
+    forward = forward / length
+    return forward, np.cross(normal, forward)
+
+
+def ground_profile(
+    depth: npt.NDArray[np.generic],
+    camera: CameraModel,
+    plane: GroundPlane,
+    settings: GroundSettings,
+) -> GroundProfile | None:
+    """The ground of this frame where it leaves `plane` (ramps), or None where it does not
+    (by more than `PROFILE_DEADBAND` over three bins in a row in any column)."""
+    if settings.max_slope <= 0.0:
+        return None
+    flat = depth.ravel()
+    if flat.dtype != np.uint16:
+        flat = flat.astype(np.float32, copy=False)
+    scale = MILLIMETRE if flat.dtype == np.uint16 else 1.0
+    column_step = max(1, camera.width // PROFILE_COLUMNS)
+    columns = np.arange(column_step // 2, camera.width, column_step, dtype=np.int64)
+    row_step = max(1, camera.height // PROFILE_ROWS)
+    rows = np.arange(camera.height - 1, -1, -row_step, dtype=np.int64)  # nearest (lowest) first
+    bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
+    heights = np.empty((columns.size, bins))
+    x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
+    forward, left = _plane_axes(plane)
+    ground_kernel.profile(
+        flat, scale, camera.width, columns, rows, x_n, y_n,
+        np.array([*plane.normal, plane.offset]), forward, left, math.tan(settings.max_slope),
+        settings.depth_noise, PROFILE_BIN, heights,
+    )  # fmt: skip
+    off = np.abs(heights) > PROFILE_DEADBAND
+    if not (off[:, 2:] & off[:, 1:-1] & off[:, :-2]).any():
+        return None
+    return GroundProfile(plane=plane, columns=columns, heights=heights, bin_size=PROFILE_BIN)
+
+
 @dataclass
 class GroundTracker:
     """One camera's floor, frame by frame: `update` gives the plane to measure heights from."""
@@ -251,6 +342,7 @@ class GroundTracker:
     _prior: GroundPlane | None = None
     _sample: GroundSample | None = None
     _sample_key: tuple[CameraModel, GroundPlane] | None = None
+    profile: GroundProfile | None = None  # the last frame's, where the ground is no plane
 
     @property
     def estimate(self) -> GroundPlane | None:
@@ -278,13 +370,14 @@ class GroundTracker:
             self.counts.fell_back += 1
             self.counts.last_reason = reason
             self._estimate = start
-            return start
-        self.counts.estimated += 1
-        if self._estimate is None:
+        elif self._estimate is None:
+            self.counts.estimated += 1
             self._estimate = found
         else:
+            self.counts.estimated += 1
             weight = self.settings.smoothing
             normal = (1.0 - weight) * self._estimate.vector + weight * found.vector
             offset = (1.0 - weight) * self._estimate.offset + weight * found.offset
             self._estimate = _plane(normal / np.linalg.norm(normal), offset)
+        self.profile = ground_profile(depth, camera, self._estimate, self.settings)
         return self._estimate

@@ -22,10 +22,17 @@ from scanfuse.compiled import compiled
 
 # `fit` writes its result into `out`: normal (3), offset, inlier count, least spread, status.
 OK, FEW_CANDIDATES, FEW_INLIERS, ALONG_A_LINE, OUT_OF_BOUNDS = 0, 1, 2, 3, 4
+# The plane is fitted to the floor candidates within FIT_DEPTH metres (from the camera)
+# beyond the NEAREST_SHARE quantile of their distances.
+FIT_DEPTH = 1.0
+NEAREST_SHARE = 0.05
 # Hypotheses are scored on every SCORE_STRIDE-th candidate; the refinement uses them all.
 SCORE_STRIDE = 2
 # Metres above the plane (beyond the depth's noise) an inlier of the refinement may lie.
 ABOVE = 0.003
+# Metres above the steepest floor's rise (beyond 3 sigma of noise) a point of an obstacle's
+# face stands in the profile's walk: clear of a noisy ramp's own points.
+FACE = 0.01
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -132,6 +139,7 @@ def _fit(
     points = np.empty((size, 3))
     tolerance = np.empty(size)
     noise_band = np.empty(size)
+    distances = np.empty(size)
     sin_tilt, cos_tilt = math.sin(max_tilt), math.cos(max_tilt)
     count = 0
     for i in range(size):
@@ -143,7 +151,7 @@ def _fit(
             continue
         x, y = rays[i, 0] * z, rays[i, 1] * z
         distance = math.sqrt(x * x + y * y + z * z)
-        if distance > reach:
+        if not distance <= reach:  # also NaN and Inf (a depth of +Inf)
             continue
         slope = prior[0] * rays[i, 0] + prior[1] * rays[i, 1] + prior[2]
         # Noise along the ray moves the height by |slope| per metre of depth.
@@ -155,7 +163,21 @@ def _fit(
         points[count, 0], points[count, 1], points[count, 2] = x, y, z
         tolerance[count] = allowed
         noise_band[count] = spread
+        distances[count] = distance
         count += 1
+    if count > 0:
+        # The floor where the robot stands: FIT_DEPTH metres from where it is first seen
+        # (a low percentile of the candidates' distances, clear of a stray near point). A
+        # ramp farther ahead is the profile's (`_profile`), not this plane's.
+        nearest = np.sort(distances[:count])[int(NEAREST_SHARE * (count - 1))]
+        kept = 0
+        for i in range(count):
+            if distances[i] <= nearest + FIT_DEPTH:
+                points[kept] = points[i]
+                tolerance[kept] = tolerance[i]
+                noise_band[kept] = noise_band[i]
+                kept += 1
+        count = kept
     out[:] = 0.0
     out[4] = count
     if count < max(min_points, 3):
@@ -224,3 +246,172 @@ axes = compiled(_axes)
 determinant3 = compiled(_determinant)
 refine = compiled(_refine)
 fit = compiled(_fit)
+
+
+def _candidate(rise: float, run: float, tan_slope: float, sigma: float) -> bool:
+    """Whether a point `rise` metres above the last ground, `run` metres beyond it, may be
+    ground: within the steepest floor's rise plus 2 sigma of its noise either way (a low
+    box's top, a little past its face, is not)."""
+    return abs(rise) <= tan_slope * max(run, 0.0) + ABOVE + 2.0 * sigma
+
+
+def _profile(
+    depth: Any,
+    scale: float,
+    width: int,
+    columns: Any,
+    rows: Any,
+    x_n: Any,
+    y_n: Any,
+    plane: Any,
+    forward: Any,
+    left: Any,
+    tan_slope: float,
+    noise: float,
+    bin_size: float,
+    profile: Any,
+) -> None:
+    """Per sampled image column the ground's height above `plane` (normal, offset) in bins
+    of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
+
+    Each column's pixels (`rows`, nearest first) become points; the bins are walked outwards
+    from the camera's foot, where the ground is the plane (height 0). A bin's ground is the
+    mean height of its points that may be ground (`_candidate`: within tan_slope * run and
+    their noise of the last ground, run their horizontal distance from it), clamped to
+    tan_slope * min(run, bin_size): the profile never rises or falls faster than the
+    steepest floor, however the points creep (an obstacle's face, a step, a drop are not
+    ground). It does not rise (fall) in a bin where many points stand clearly above (below)
+    any floor's rise: an obstacle's face, a drop's edge. A bin without ground keeps the last
+    ground; if it holds an obstacle's or a drop's points, the last ground's place moves on
+    to it (the ground is held level under an obstacle and across a drop: neither a box's
+    top nor a drop's far floor becomes ground by distance alone).
+    """
+    bins = profile.shape[1]
+    count = rows.size
+    radius = np.empty(count)
+    height = np.empty(count)
+    allowed = np.empty(count)
+    slot = np.empty(count, np.int64)
+    order = np.empty(count, np.int64)
+    starts = np.zeros(bins + 1, np.int64)
+    for c in range(min(columns.size, profile.shape[0])):
+        column = columns[c]
+        kept = 0
+        starts[:] = 0
+        for j in range(count):
+            index = rows[j] * width + column
+            if not (0 <= column < width and 0 <= index < depth.size):
+                continue
+            z = np.float64(depth[index]) * scale
+            if not z > 0.0:
+                continue
+            x, y = x_n[index] * z, y_n[index] * z
+            h = plane[0] * x + plane[1] * y + plane[2] * z + plane[3]
+            along = forward[0] * x + forward[1] * y + forward[2] * z
+            across = left[0] * x + left[1] * y + left[2] * z
+            r = math.sqrt(along * along + across * across)
+            if not (r < bins * bin_size and math.isfinite(h)):  # also NaN, before int()
+                continue
+            b = min(int(r / bin_size), bins - 1)
+            vertical = abs(plane[0] * x_n[index] + plane[1] * y_n[index] + plane[2])
+            radius[kept], height[kept], slot[kept] = r, h, b
+            allowed[kept] = noise * z * z * vertical  # 1 sigma of the point's height
+            starts[b + 1] += 1
+            kept += 1
+        for b in range(bins):
+            starts[b + 1] += starts[b]
+        filled = starts[:bins].copy()
+        for j in range(kept):
+            order[filled[slot[j]]] = j
+            filled[slot[j]] += 1
+        ground, at = 0.0, 0.0
+        for b in range(bins):
+            centre = (b + 0.5) * bin_size
+            total, found, above, below = 0.0, 0, 0, 0
+            for k in range(starts[b], starts[b + 1]):
+                j = order[k]
+                run = radius[j] - at
+                rise = height[j] - ground
+                clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[j]
+                if candidate(rise, run, tan_slope, allowed[j]):
+                    total += height[j]
+                    found += 1
+                elif rise > clear:
+                    above += 1
+                elif rise < -clear:
+                    below += 1
+            if found > 0:
+                # At most one bin's rise or fall per bin of ground seen: across a gap (no
+                # points) the ground does not jump to stray points far beyond it.
+                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
+                # An obstacle's face (many points above any floor's rise) or a drop's (many
+                # below) stands in this bin: the ground does not rise or fall into it.
+                top = ground if above >= max(2, found // 4) else ground + reach
+                bottom = ground if below >= max(2, found // 4) else ground - reach
+                ground = min(max(total / found, bottom), top)
+                at = centre
+            elif above >= 2 or below >= 2:
+                # An obstacle or a drop and no ground: the ground is held level across it, so
+                # the window does not widen onto a deep box's top or a drop's far floor.
+                at = centre
+            profile[c, b] = ground
+
+
+def _crossings(
+    x_n: Any,
+    y_n: Any,
+    width: int,
+    plane: Any,
+    forward: Any,
+    left: Any,
+    columns: Any,
+    profile: Any,
+    bin_size: float,
+    far: float,
+    levels: Any,
+    lifts: Any,
+) -> None:
+    """Per level L and pixel the ground's height g above the plane at the point where the
+    pixel's line of sight is L above the ground of its column's profile (the nearest sampled
+    column; linear between bin centres, level beyond the ends): lifts[level, pixel].
+
+    The line of sight's height above the ground falls along it (it looks down more steeply
+    than any floor slopes), so the first knot below L brackets the point. A line of sight
+    that stays above L within `far` metres of depth takes the ground under its point at `far`.
+    """
+    bins = profile.shape[1]
+    last = columns.size - 1
+    first_column = columns[0]
+    step = columns[1] - columns[0] if columns.size > 1 else 1
+    for i in range(min(x_n.size, y_n.size, lifts.shape[1])):
+        u = i % width
+        c = min(max(round((u - first_column) / step), 0), last)
+        down = plane[0] * x_n[i] + plane[1] * y_n[i] + plane[2]  # height per metre of depth
+        along = forward[0] * x_n[i] + forward[1] * y_n[i] + forward[2]
+        across = left[0] * x_n[i] + left[1] * y_n[i] + left[2]
+        run = math.sqrt(along * along + across * across)  # horizontal metres per metre of depth
+        for level in range(min(levels.size, lifts.shape[0])):
+            target = levels[level]
+            value = profile[c, bins - 1]
+            previous_gap = plane[3] - profile[c, 0] - target
+            for b in range(bins + 1):
+                # Knots at bin centres, and the far end.
+                z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
+                z = min(z, far)
+                g = profile[c, min(b, bins - 1)]
+                gap = down * z + plane[3] - g - target  # above the ground, less the level
+                if gap <= 0.0:
+                    share = previous_gap / (previous_gap - gap) if previous_gap > gap else 1.0
+                    g_before = profile[c, max(min(b - 1, bins - 1), 0)]
+                    value = g_before + share * (g - g_before)
+                    break
+                if z >= far:
+                    value = g
+                    break
+                previous_gap = gap
+            lifts[level, i] = value
+
+
+candidate = compiled(_candidate)
+profile = compiled(_profile, error_model='numpy')
+crossings = compiled(_crossings, error_model='numpy')

@@ -68,7 +68,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from scanfuse.camera import MILLIMETRE
-from scanfuse.convert.ground import GroundPlane
+from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.scan import TWO_PI, AngleGrid, Scan, to_rep117
@@ -312,7 +312,7 @@ def _cluster_range_squared(nearest: F32, spread: float) -> F32:
 
 def _depth_interval(
     a_z: F64,
-    b_z: float,
+    b_z: float | F64,
     *,
     min_obstacle_height: float,
     max_obstacle_height: float,
@@ -328,9 +328,13 @@ def _depth_interval(
         at_max = (max_obstacle_height - b_z) / a_z
     rising = a_z > _LEVEL_RAY
     falling = a_z < -_LEVEL_RAY
-    level_inside = min_obstacle_height <= b_z <= max_obstacle_height
-    lo = np.where(rising, at_min, np.where(falling, at_max, -np.inf if level_inside else np.inf))
-    hi = np.where(rising, at_max, np.where(falling, at_min, np.inf if level_inside else -np.inf))
+    level_inside = (min_obstacle_height <= b_z) & (b_z <= max_obstacle_height)
+    lo = np.where(
+        rising, at_min, np.where(falling, at_max, np.where(level_inside, -np.inf, np.inf))
+    )
+    hi = np.where(
+        rising, at_max, np.where(falling, at_min, np.where(level_inside, np.inf, -np.inf))
+    )
     lo = np.maximum(lo, range_min)
     hi = np.minimum(hi, range_max)
     no_ray = ~np.isfinite(a_z)
@@ -361,7 +365,12 @@ class DropLimits:
 
 
 def _drop_interval(
-    a_z: F64, b_z: float, horizontal: F64, limits: DropLimits, range_min: float, range_max: float
+    a_z: F64,
+    b_z: float | F64,
+    horizontal: F64,
+    limits: DropLimits,
+    range_min: float,
+    range_max: float,
 ) -> tuple[F64, F64, F64]:
     """Per pixel the depths [lo, hi] that are drop-offs and the floor crossing depth Z0.
 
@@ -672,6 +681,7 @@ class ObstacleProjector:
         self._drop_horizontal = np.empty(pixels if drops is not None else 0, dtype=np.float32)
         self.ground = GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
         self.ground_refreshes = 0  # times the height tables were rebuilt for a new ground
+        self._profiled = False  # the tables hold a profile's ramps, not one plane
         for top in range(0, shape[0], band):
             rows = min(band, shape[0] - top)
             part = slice(top * shape[1], (top + rows) * shape[1])
@@ -758,26 +768,39 @@ class ObstacleProjector:
         self._warm_up()
 
     def _height_intervals(
-        self, part: slice, x_n: F64, y_n: F64, ground: GroundPlane
+        self, part: slice, x_n: F64, y_n: F64, ground: GroundPlane, lifts: F64 | None = None
     ) -> tuple[F64, F64, F64, F64, F64]:
         """Per pixel of `part` the slab interval [lo, hi], the drop interval [drop_lo,
-        drop_hi] and the floor crossing depth, for heights above `ground`."""
+        drop_hi] and the floor crossing depth, for heights above `ground`; with `lifts`
+        (3 x pixels, `GroundProfile.ground_under` at max_obstacle_height,
+        min_obstacle_height and 0) above the
+        ground under the points where the line of sight is at the slab's top, at its bottom
+        and meets the ground (a ramp's height there)."""
         normal = ground.normal
         a_z = normal[0] * x_n + normal[1] * y_n + normal[2]
-        lo, hi = _depth_interval(
-            a_z,
-            ground.offset,
-            min_obstacle_height=self.min_obstacle_height,
-            max_obstacle_height=self.max_obstacle_height,
-            range_min=self.range_min,
-            range_max=self.range_max,
-        )
+        b_z: float | F64 = ground.offset
+        limits = {
+            'min_obstacle_height': self.min_obstacle_height,
+            'max_obstacle_height': self.max_obstacle_height,
+            'range_min': self.range_min,
+            'range_max': self.range_max,
+        }
+        if lifts is None:
+            lo, hi = _depth_interval(a_z, b_z, **limits)
+        else:
+            # A falling line of sight enters the slab at its top and leaves it at its bottom.
+            at_top, _ = _depth_interval(a_z, ground.offset - lifts[0], **limits)
+            _, at_bottom = _depth_interval(a_z, ground.offset - lifts[1], **limits)
+            lo, hi = at_top, at_bottom
+            rising = a_z > _LEVEL_RAY
+            lo[rising], hi[rising] = at_bottom[rising], at_top[rising]
+            b_z = ground.offset - lifts[2]
         if self.drops is None:
             drop_lo = np.full(a_z.shape, np.inf)
             return lo, hi, drop_lo, -drop_lo, np.full(a_z.shape, np.nan)
         horizontal = self._drop_horizontal[part].astype(np.float64)
         drop_lo, drop_hi, floor = _drop_interval(
-            a_z, ground.offset, horizontal, self.drops, self.range_min, self.range_max
+            a_z, b_z, horizontal, self.drops, self.range_min, self.range_max
         )
         return lo, hi, drop_lo, drop_hi, floor
 
@@ -806,16 +829,31 @@ class ObstacleProjector:
             for tables in (self._millimetres, self._metres)
         }
 
-    def use_ground(self, ground: GroundPlane) -> bool:
-        """Measure heights above `ground` from now on; True when the tables were rebuilt.
+    def use_ground(self, ground: GroundPlane, profile: GroundProfile | None = None) -> bool:
+        """Measure heights above `ground` (and `profile`'s ramps) from now on; True when the
+        tables were rebuilt.
 
         Within `GROUND_TOLERANCE` of the plane the tables hold (no height within
-        range_max of the camera moves by more), the tables stay: a steady estimate costs
-        nothing, and a flat floor with the right mounting gives exactly the mounting's scan.
+        range_max of the camera moves by more), and without a profile, the tables stay: a
+        steady estimate costs nothing, and a flat floor with the right mounting gives
+        exactly the mounting's scan. A profile rebuilds them every frame it is given.
         The slab's view (`in_view`) and the order rows are read in stay the mounting's.
         """
-        if ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE:
+        if (
+            profile is None
+            and not self._profiled
+            and ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE
+        ):
             return False
+        lifts = (
+            None
+            if profile is None
+            else profile.ground_under(
+                self.camera,
+                self.range_max,
+                (self.max_obstacle_height, self.min_obstacle_height, 0.0),
+            )
+        )
         x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
         width = self.camera.width
         for top in range(0, self.camera.height, self._band):
@@ -823,9 +861,13 @@ class ObstacleProjector:
             part = slice(top * width, (top + rows) * width)
             x_n = x_table[part].astype(np.float64)
             y_n = y_table[part].astype(np.float64)
-            self._store_heights(part, *self._height_intervals(part, x_n, y_n, ground))
+            intervals = self._height_intervals(
+                part, x_n, y_n, ground, None if lifts is None else lifts[:, part]
+            )
+            self._store_heights(part, *intervals)
         self._block_extremes = self._extremes()
         self.ground = ground
+        self._profiled = profile is not None
         self.ground_refreshes += 1
         return True
 
@@ -979,6 +1021,7 @@ class ObstacleProjector:
         depth: npt.NDArray[np.generic],
         motion: PlanarMotion = IDENTITY_MOTION,
         ground: GroundPlane | None = None,
+        profile: GroundProfile | None = None,
     ) -> Scan:
         """The obstacle scan of one depth image (uint16 mm, 0 invalid; float m, NaN invalid).
 
@@ -998,7 +1041,7 @@ class ObstacleProjector:
         """
         self.camera.check_depth(depth)
         if ground is not None:
-            self.use_ground(ground)
+            self.use_ground(ground, profile)
         if not all(map(math.isfinite, (motion.cos, motion.sin, motion.tx, motion.ty))):
             msg = f'motion must be finite (cos, sin, tx, ty), got {motion}; check the odometry'
             raise InputError(msg)
