@@ -14,12 +14,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from tests.support.render import box_depth
+from tests.support.render import box_depth, slope_depth
 
 from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.scan import AngleGrid
-from scanfuse.transforms import Extrinsics
+from scanfuse.transforms import Extrinsics, Transform
 
 SIZES = ((640, 480), (848, 480), (1280, 720), (1920, 1080))
 CADENCE_SIZE = (1280, 720)  # the size timed at a camera's 30 Hz cadence
@@ -66,17 +66,25 @@ def camera_for(width: int, height: int) -> CameraModel:
     )
 
 
-def true_depth(camera: CameraModel) -> np.ndarray:
-    """Noise-free depth along the optical axis of the nearest surface, metres (inf: none)."""
-    return box_depth(camera, EXTRINSICS.base_to_camera_optical, BOXES)
+def true_depth(camera: CameraModel, *, body_pitch: float = 0.0, ramp: float = 0.0) -> np.ndarray:
+    """Noise-free depth along the optical axis of the nearest surface, metres (inf: none);
+    seen from a body pitched `body_pitch` radians (nose down) about the base's origin, and
+    with the floor rising `ramp` metres per metre from 1.2 m ahead (a ramp) when not 0."""
+    pose = Transform.from_rpy(0.0, body_pitch, 0.0) @ EXTRINSICS.base_to_camera_optical
+    if ramp:
+        return slope_depth(camera, pose, start=1.2, rise=ramp, boxes=BOXES)
+    return box_depth(camera, pose, BOXES)
 
 
-def frame(camera: CameraModel, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def frame(
+    camera: CameraModel, seed: int = 0, *, body_pitch: float = 0.0, ramp: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """One noisy frame of the room: (uint16 millimetres, 0 invalid; float32 metres, NaN)."""
     rng = np.random.default_rng(seed)
-    depth = true_depth(camera)
-    depth = depth + NOISE * depth**2 * rng.standard_normal(depth.shape)
-    invalid = ~np.isfinite(depth) | (depth <= 0.0) | (rng.random(depth.shape) < INVALID)
+    depth = true_depth(camera, body_pitch=body_pitch, ramp=ramp)
+    with np.errstate(invalid='ignore'):
+        depth = depth + NOISE * depth**2 * rng.standard_normal(depth.shape)
+        invalid = ~np.isfinite(depth) | (depth <= 0.0) | (rng.random(depth.shape) < INVALID)
     metres = np.where(invalid, np.nan, depth).astype(np.float32)
     millimetres = np.where(invalid | (depth > 65.0), 0, np.round(depth * 1000.0))
     return millimetres.astype(np.uint16), metres

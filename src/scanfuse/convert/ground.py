@@ -249,10 +249,11 @@ PROFILE_COLUMNS = 48
 PROFILE_ROWS = 240
 # Metres of horizontal distance per bin of the profile.
 PROFILE_BIN = 0.15
-# Metres the profile must leave the plane by, over three bins in a row, to count (below, the
-# plane holds: a flat floor's noise, a bin of an obstacle's foot make no profile, and the
-# tables stay).
+# Metres the profile must leave the plane by, in PROFILE_EVIDENCE bins in a row where ground
+# was seen, to count (below, the plane holds: a flat floor's noise, a bin of an obstacle's
+# foot make no profile, and the tables stay).
 PROFILE_DEADBAND = 0.02
+PROFILE_EVIDENCE = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -306,7 +307,7 @@ def ground_profile(
     settings: GroundSettings,
 ) -> GroundProfile | None:
     """The ground of this frame where it leaves `plane` (ramps), or None where it does not
-    (by more than `PROFILE_DEADBAND` over three bins in a row in any column)."""
+    (by more than `PROFILE_DEADBAND` in `PROFILE_EVIDENCE` bins in a row, in any column)."""
     if settings.max_slope <= 0.0:
         return None
     flat = depth.ravel()
@@ -319,15 +320,15 @@ def ground_profile(
     rows = np.arange(camera.height - 1, -1, -row_step, dtype=np.int64)  # nearest (lowest) first
     bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
     heights = np.empty((columns.size, bins))
+    evidence = np.empty(columns.size, dtype=np.int64)
     x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
     forward, left = _plane_axes(plane)
     ground_kernel.profile(
         flat, scale, camera.width, columns, rows, x_n, y_n,
         np.array([*plane.normal, plane.offset]), forward, left, math.tan(settings.max_slope),
-        settings.depth_noise, PROFILE_BIN, heights,
+        settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND, heights, evidence,
     )  # fmt: skip
-    off = np.abs(heights) > PROFILE_DEADBAND
-    if not (off[:, 2:] & off[:, 1:-1] & off[:, :-2]).any():
+    if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None
     return GroundProfile(plane=plane, columns=columns, heights=heights, bin_size=PROFILE_BIN)
 

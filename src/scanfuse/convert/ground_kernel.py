@@ -269,7 +269,9 @@ def _profile(
     tan_slope: float,
     noise: float,
     bin_size: float,
+    deadband: float,
     profile: Any,
+    evidence: Any,
 ) -> None:
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
@@ -285,6 +287,9 @@ def _profile(
     ground; if it holds an obstacle's or a drop's points, the last ground's place moves on
     to it (the ground is held level under an obstacle and across a drop: neither a box's
     top nor a drop's far floor becomes ground by distance alone).
+
+    `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
+    than `deadband` plus twice the noise (1 sigma) of its points off the plane.
     """
     bins = profile.shape[1]
     count = rows.size
@@ -325,9 +330,11 @@ def _profile(
             order[filled[slot[j]]] = j
             filled[slot[j]] += 1
         ground, at = 0.0, 0.0
+        streak = 0
+        evidence[c] = 0
         for b in range(bins):
             centre = (b + 0.5) * bin_size
-            total, found, above, below = 0.0, 0, 0, 0
+            total, sigma, found, above, below = 0.0, 0.0, 0, 0, 0
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
                 run = radius[j] - at
@@ -335,6 +342,7 @@ def _profile(
                 clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[j]
                 if candidate(rise, run, tan_slope, allowed[j]):
                     total += height[j]
+                    sigma += allowed[j]
                     found += 1
                 elif rise > clear:
                     above += 1
@@ -350,6 +358,9 @@ def _profile(
                 bottom = ground if below >= max(2, found // 4) else ground - reach
                 ground = min(max(total / found, bottom), top)
                 at = centre
+                # Off by more than the deadband and twice the noise of a point there.
+                streak = streak + 1 if abs(ground) > deadband + 2.0 * sigma / found else 0
+                evidence[c] = max(evidence[c], streak)
             elif above >= 2 or below >= 2:
                 # An obstacle or a drop and no ground: the ground is held level across it, so
                 # the window does not widen onto a deep box's top or a drop's far floor.

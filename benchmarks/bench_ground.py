@@ -1,0 +1,119 @@
+"""The floor found in every frame (issue 25) on the realistic room frames (`scenes.py`).
+
+Per size: the ground estimate alone (`GroundTracker.update`: the plane, and the profile's
+walk of the image's columns); the obstacle scan with it (estimate, then the scan above the
+estimated ground) against the scan above the mounting's plane, drop detection on in both
+(the pipeline's default), in interleaved batches: on the room as mounted (issue 25's
+budget: 1.15), seen from a body pitching by 0, +2 and -2 deg in turn (the estimate moves
+every frame, so the height tables are rebuilt every frame), and with a 1:12 ramp rising
+from 1.2 m ahead (a ramp rebuilds them every frame, with its profile).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import statistics
+import time
+from typing import TYPE_CHECKING
+
+from benchmarks import scenes
+from benchmarks.common import Row, median_seconds
+from scanfuse.config import FusionConfig
+from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
+from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import numpy as np
+
+SECTION = 'ground'
+_CONFIG = FusionConfig()
+DROPS = DropLimits(_CONFIG.drop_min_depth, _CONFIG.drop_min_width, _CONFIG.depth_noise)
+PRIOR = GroundPlane.of_mounting(scenes.EXTRINSICS.base_to_camera_optical)
+
+
+def _interleaved(calls: dict[str, Callable[[], object]], repeat: int = 31) -> dict[str, float]:
+    """Median seconds per call of each, batches of the calls interleaved (the same load)."""
+    for call in calls.values():
+        call()
+    slowest = max(median_seconds(call, repeat=3) for call in calls.values())
+    number = max(1, round(0.01 / slowest))
+    samples: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(repeat):
+        for name, call in calls.items():
+            start = time.perf_counter()
+            for _ in range(number):
+                call()
+            samples[name].append((time.perf_counter() - start) / number)
+    return {name: statistics.median(times) for name, times in samples.items()}
+
+
+def _with_ground(
+    projector: ObstacleProjector, tracker: GroundTracker, frames: itertools.cycle[np.ndarray]
+) -> Callable[[], object]:
+    def call() -> object:
+        depth = next(frames)
+        plane = tracker.update(depth, projector.camera, PRIOR)
+        return projector.scan(depth, ground=plane, profile=tracker.profile)
+
+    return call
+
+
+def run() -> list[Row]:
+    rows = []
+    settings = GroundSettings.from_config(_CONFIG)
+    for width, height in scenes.SIZES:
+        size = f'{width}x{height}'
+        camera = scenes.camera_for(width, height)
+        room = scenes.frame(camera)[0]
+        pitching = [
+            scenes.frame(camera, body_pitch=math.radians(pitch))[0] for pitch in (0.0, 2.0, -2.0)
+        ]
+        ramp = scenes.frame(camera, ramp=1.0 / 12.0)[0]
+
+        def projector() -> ObstacleProjector:
+            return ObstacleProjector(
+                camera, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS, drops=DROPS
+            )
+
+        plain = projector()
+        tracker = GroundTracker(settings)
+        estimate = median_seconds(lambda t=tracker, d=room: t.update(d, camera, PRIOR), repeat=51)
+        tracker.update(room, camera, PRIOR)
+        profiled = tracker.profile is not None
+        rows.append(
+            Row(
+                SECTION,
+                f'ground estimate {size}',
+                estimate,
+                f'plane + profile walk; the room is {"not " if profiled else ""}one plane',
+            )
+        )
+        times = _interleaved(
+            {
+                'off': lambda p=plain, d=room: p.scan(d),
+                'room': _with_ground(projector(), GroundTracker(settings), itertools.cycle([room])),
+                'pitching': _with_ground(
+                    projector(), GroundTracker(settings), itertools.cycle(pitching)
+                ),
+                'ramp': _with_ground(projector(), GroundTracker(settings), itertools.cycle([ramp])),
+            }
+        )
+        off = times['off']
+        for name, note in (
+            ('room', 'the room as mounted; budget 1.15'),
+            ('pitching', 'body pitched 0, +2, -2 deg in turn: tables rebuilt every frame'),
+            ('ramp', '1:12 ramp from 1.2 m: profile and tables every frame'),
+        ):
+            rows.append(
+                Row(
+                    SECTION,
+                    f'obstacle with ground, {name} {size}',
+                    times[name],
+                    f'{times[name] / off:.2f}x the scan above the mounting ({off * 1e3:.2f} ms); '
+                    + note,
+                )
+            )
+    return rows
