@@ -28,6 +28,8 @@ if TYPE_CHECKING:
 
     import numpy as np
 
+    from scanfuse.camera import CameraModel
+
 SECTION = 'ground'
 _CONFIG = FusionConfig()
 DROPS = DropLimits(_CONFIG.drop_min_depth, _CONFIG.drop_min_width, _CONFIG.depth_noise)
@@ -73,14 +75,16 @@ def run() -> list[Row]:
         ]
         ramp = scenes.frame(camera, ramp=1.0 / 12.0)[0]
 
-        def projector() -> ObstacleProjector:
+        def projector(camera: CameraModel = camera) -> ObstacleProjector:
             return ObstacleProjector(
                 camera, scenes.EXTRINSICS, scenes.GRID, **scenes.SETTINGS, drops=DROPS
             )
 
         plain = projector()
         tracker = GroundTracker(settings)
-        estimate = median_seconds(lambda t=tracker, d=room: t.update(d, camera, PRIOR), repeat=51)
+        estimate = median_seconds(
+            lambda t=tracker, d=room, c=camera: t.update(d, c, PRIOR), repeat=51
+        )
         tracker.update(room, camera, PRIOR)
         profiled = tracker.profile is not None
         rows.append(
