@@ -288,3 +288,39 @@ def test_a_ramp_seen_from_a_pitching_body_is_floor_too():
     false, right = ramp_score(scan)
     assert false <= 0.005
     assert right >= 0.95
+
+
+@pytest.mark.parametrize('ramp', [False, True], ids=['plane', 'ramp'])
+def test_the_compiled_height_tables_are_the_numpy_ones(ramp):
+    from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
+    from scanfuse.scan import AngleGrid
+    from scanfuse.transforms import Extrinsics
+
+    extrinsics = Extrinsics.from_mounting(camera_height=HEIGHT, camera_pitch=PITCH)
+    pose = optical_pose(body_pitch=1.5, body_roll=-1.0)
+    depth = ramp_depth(1.0 / 12.0, pose) if ramp else millimetres(box_depth(CAMERA, pose, [BOX]))
+    tracker = GroundTracker(GroundSettings())
+    plane = tracker.update(depth, CAMERA, GroundPlane.of_mounting(optical_pose()))
+    assert (tracker.profile is not None) == ramp
+    grid = AngleGrid(-math.pi, 2.0 * math.pi / READINGS, READINGS)
+    projectors = [
+        ObstacleProjector(
+            CAMERA, extrinsics, grid, min_obstacle_height=0.03, max_obstacle_height=0.5,
+            range_min=0.2, range_max=3.0, drops=DropLimits(0.05, 0.02, 0.01), use_kernel=kernel,
+        )
+        for kernel in (True, False)
+    ]  # fmt: skip
+    compiled, reference = projectors
+    assert compiled.uses_kernel
+    for projector in projectors:
+        assert projector.use_ground(plane, tracker.profile)
+    for ours, theirs in zip(
+        (*compiled._metres, *compiled._millimetres),
+        (*reference._metres, *reference._millimetres),
+        strict=True,
+    ):
+        np.testing.assert_allclose(ours, theirs, rtol=1e-6, atol=1e-6)
+    # The blocks' extremes as numpy finds them from the compiled pass's tables.
+    for dtype, extremes in compiled._extremes().items():
+        for ours, theirs in zip(compiled._block_extremes[dtype], extremes, strict=True):
+            np.testing.assert_array_equal(ours, theirs)

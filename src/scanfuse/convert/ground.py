@@ -29,6 +29,7 @@ estimate equals the prior within the depth's rounding, and the projector keeps i
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -245,8 +246,8 @@ def fit_ground(
 
 
 # Sampled image columns of the profile, at most; rows: every ROW_STRIDE-th of this many.
-PROFILE_COLUMNS = 48
-PROFILE_ROWS = 240
+PROFILE_COLUMNS = 32
+PROFILE_ROWS = 160
 # Metres of horizontal distance per bin of the profile.
 PROFILE_BIN = 0.15
 # Metres the profile must leave the plane by, in PROFILE_EVIDENCE bins in a row where ground
@@ -289,15 +290,30 @@ class GroundProfile:
 
 
 def _plane_axes(plane: GroundPlane) -> tuple[F64, F64]:
-    """Horizontal unit axes of the plane: the optical axis's direction on it, and its left."""
-    normal = plane.vector
-    forward = _UP - (_UP @ normal) * normal  # _UP is the optical z axis here
-    length = float(np.linalg.norm(forward))
+    """Horizontal unit axes of the plane: the optical axis's direction on it, and its left.
+
+    (Plain floats: numpy's per-call cost on 3-vectors is most of this per frame.)
+    """
+    n_x, n_y, n_z = plane.normal
+    # The optical z axis less its part along the normal.
+    f_x, f_y, f_z = -n_z * n_x, -n_z * n_y, 1.0 - n_z * n_z
+    length = math.sqrt(f_x * f_x + f_y * f_y + f_z * f_z)
     if length < 1e-9:  # the camera looks straight down: any horizontal axis will do
-        forward = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
-        length = float(np.linalg.norm(forward))
-    forward = forward / length
-    return forward, np.cross(normal, forward)
+        f_x, f_y, f_z = 1.0 - n_x * n_x, -n_x * n_y, -n_x * n_z
+        length = math.sqrt(f_x * f_x + f_y * f_y + f_z * f_z)
+    f_x, f_y, f_z = f_x / length, f_y / length, f_z / length
+    left = (n_y * f_z - n_z * f_y, n_z * f_x - n_x * f_z, n_x * f_y - n_y * f_x)
+    return np.array((f_x, f_y, f_z)), np.array(left)
+
+
+@functools.lru_cache(maxsize=8)
+def _profile_grid(width: int, height: int) -> tuple[npt.NDArray[np.int64], ...]:
+    """The sampled columns, and the rows nearest (lowest) first, of the profile's walk."""
+    column_step = max(1, width // PROFILE_COLUMNS)
+    columns = np.arange(column_step // 2, width, column_step, dtype=np.int64)
+    row_step = max(1, height // PROFILE_ROWS)
+    rows = np.arange(height - 1, -1, -row_step, dtype=np.int64)
+    return columns, rows
 
 
 def ground_profile(
@@ -314,10 +330,7 @@ def ground_profile(
     if flat.dtype != np.uint16:
         flat = flat.astype(np.float32, copy=False)
     scale = MILLIMETRE if flat.dtype == np.uint16 else 1.0
-    column_step = max(1, camera.width // PROFILE_COLUMNS)
-    columns = np.arange(column_step // 2, camera.width, column_step, dtype=np.int64)
-    row_step = max(1, camera.height // PROFILE_ROWS)
-    rows = np.arange(camera.height - 1, -1, -row_step, dtype=np.int64)  # nearest (lowest) first
+    columns, rows = _profile_grid(camera.width, camera.height)
     bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
     heights = np.empty((columns.size, bins))
     evidence = np.empty(columns.size, dtype=np.int64)

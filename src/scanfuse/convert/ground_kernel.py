@@ -293,19 +293,18 @@ def _profile(
     """
     bins = profile.shape[1]
     count = rows.size
-    radius = np.empty(count)
-    height = np.empty(count)
-    allowed = np.empty(count)
-    slot = np.empty(count, np.int64)
-    order = np.empty(count, np.int64)
-    starts = np.zeros(bins + 1, np.int64)
-    for c in range(min(columns.size, profile.shape[0])):
-        column = columns[c]
-        kept = 0
-        starts[:] = 0
-        for j in range(count):
+    columns_used = min(columns.size, profile.shape[0], evidence.size)
+    # Every point first, row by row (the image is read along its rows, not down its
+    # columns), then each column's walk.
+    radius = np.empty((columns_used, count))
+    height = np.empty((columns_used, count))
+    allowed = np.empty((columns_used, count))
+    slot = np.full((columns_used, count), -1, np.int64)
+    for j in range(count):
+        for c in range(columns_used):
+            column = columns[c]
             index = rows[j] * width + column
-            if not (0 <= column < width and 0 <= index < depth.size):
+            if not (0 <= column < width and 0 <= index < min(depth.size, x_n.size, y_n.size)):
                 continue
             z = np.float64(depth[index]) * scale
             if not z > 0.0:
@@ -317,18 +316,24 @@ def _profile(
             r = math.sqrt(along * along + across * across)
             if not (r < bins * bin_size and math.isfinite(h)):  # also NaN, before int()
                 continue
-            b = min(int(r / bin_size), bins - 1)
             vertical = abs(plane[0] * x_n[index] + plane[1] * y_n[index] + plane[2])
-            radius[kept], height[kept], slot[kept] = r, h, b
-            allowed[kept] = noise * z * z * vertical  # 1 sigma of the point's height
-            starts[b + 1] += 1
-            kept += 1
+            radius[c, j], height[c, j] = r, h
+            slot[c, j] = min(int(r / bin_size), bins - 1)
+            allowed[c, j] = noise * z * z * vertical  # 1 sigma of the point's height
+    order = np.empty(count, np.int64)
+    starts = np.zeros(bins + 1, np.int64)
+    for c in range(columns_used):
+        starts[:] = 0
+        for j in range(count):
+            if slot[c, j] >= 0:
+                starts[slot[c, j] + 1] += 1
         for b in range(bins):
             starts[b + 1] += starts[b]
         filled = starts[:bins].copy()
-        for j in range(kept):
-            order[filled[slot[j]]] = j
-            filled[slot[j]] += 1
+        for j in range(count):
+            if slot[c, j] >= 0:
+                order[filled[slot[c, j]]] = j
+                filled[slot[c, j]] += 1
         ground, at = 0.0, 0.0
         streak = 0
         evidence[c] = 0
@@ -337,12 +342,12 @@ def _profile(
             total, sigma, found, above, below = 0.0, 0.0, 0, 0, 0
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
-                run = radius[j] - at
-                rise = height[j] - ground
-                clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[j]
-                if candidate(rise, run, tan_slope, allowed[j]):
-                    total += height[j]
-                    sigma += allowed[j]
+                run = radius[c, j] - at
+                rise = height[c, j] - ground
+                clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[c, j]
+                if candidate(rise, run, tan_slope, allowed[c, j]):
+                    total += height[c, j]
+                    sigma += allowed[c, j]
                     found += 1
                 elif rise > clear:
                     above += 1

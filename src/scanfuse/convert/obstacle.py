@@ -68,6 +68,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from scanfuse.camera import MILLIMETRE
+from scanfuse.convert import height_kernel
 from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
@@ -788,12 +789,13 @@ class ObstacleProjector:
         if lifts is None:
             lo, hi = _depth_interval(a_z, b_z, **limits)
         else:
-            # A falling line of sight enters the slab at its top and leaves it at its bottom.
-            at_top, _ = _depth_interval(a_z, ground.offset - lifts[0], **limits)
-            _, at_bottom = _depth_interval(a_z, ground.offset - lifts[1], **limits)
-            lo, hi = at_top, at_bottom
+            # A falling line of sight enters the slab at its top and leaves it at its bottom;
+            # a rising one the other way: each end above the ground under it.
+            top_lo, top_hi = _depth_interval(a_z, ground.offset - lifts[0], **limits)
+            bottom_lo, bottom_hi = _depth_interval(a_z, ground.offset - lifts[1], **limits)
             rising = a_z > _LEVEL_RAY
-            lo[rising], hi[rising] = at_bottom[rising], at_top[rising]
+            lo = np.where(rising, bottom_lo, top_lo)
+            hi = np.where(rising, top_hi, bottom_hi)
             b_z = ground.offset - lifts[2]
         if self.drops is None:
             drop_lo = np.full(a_z.shape, np.inf)
@@ -829,6 +831,45 @@ class ObstacleProjector:
             for tables in (self._millimetres, self._metres)
         }
 
+    def _numpy_heights(self, ground: GroundPlane, lifts: F64 | None) -> None:
+        """The height tables and the blocks' extremes for `ground` (and `lifts`), in numpy
+        (the reference of `_compiled_heights`, and the way without numba)."""
+        x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
+        width = self.camera.width
+        for top in range(0, self.camera.height, self._band):
+            rows = min(self._band, self.camera.height - top)
+            part = slice(top * width, (top + rows) * width)
+            x_n = x_table[part].astype(np.float64)
+            y_n = y_table[part].astype(np.float64)
+            intervals = self._height_intervals(
+                part, x_n, y_n, ground, None if lifts is None else lifts[:, part]
+            )
+            self._store_heights(part, *intervals)
+        self._block_extremes = self._extremes()
+
+    def _compiled_heights(self, ground: GroundPlane, lifts: F64 | None) -> None:
+        """`_numpy_heights` in one compiled pass (`height_kernel`)."""
+        x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
+        drops = self.drops
+        height_kernel.tables(
+            x_table, y_table, self._drop_horizontal, np.array(ground.normal), ground.offset,
+            np.empty((3, 0)) if lifts is None else lifts,
+            np.array([self.min_obstacle_height, self.max_obstacle_height, self.range_min,
+                      self.range_max]),
+            np.zeros(4) if drops is None else np.array(
+                [1.0, drops.min_depth, drops.min_width, drops.noise]
+            ),
+            *(self._metres[index] for index in (0, 1, 4, 5)),
+            *(self._millimetres[index] for index in (0, 1, 4, 5)),
+        )  # fmt: skip
+        height, width = self.camera.height, self.camera.width
+        block = self._kernel.BLOCK if self._kernel is not None else width
+        for tables in (self._millimetres, self._metres):
+            height_kernel.extremes(
+                tables[0], tables[1], tables[4], height, width, self._bands, block,
+                *self._block_extremes[np.dtype(tables[0].dtype)],
+            )  # fmt: skip
+
     def use_ground(self, ground: GroundPlane, profile: GroundProfile | None = None) -> bool:
         """Measure heights above `ground` (and `profile`'s ramps) from now on; True when the
         tables were rebuilt.
@@ -845,27 +886,14 @@ class ObstacleProjector:
             and ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE
         ):
             return False
+        levels = (self.max_obstacle_height, self.min_obstacle_height, 0.0)
         lifts = (
-            None
-            if profile is None
-            else profile.ground_under(
-                self.camera,
-                self.range_max,
-                (self.max_obstacle_height, self.min_obstacle_height, 0.0),
-            )
+            None if profile is None else profile.ground_under(self.camera, self.range_max, levels)
         )
-        x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
-        width = self.camera.width
-        for top in range(0, self.camera.height, self._band):
-            rows = min(self._band, self.camera.height - top)
-            part = slice(top * width, (top + rows) * width)
-            x_n = x_table[part].astype(np.float64)
-            y_n = y_table[part].astype(np.float64)
-            intervals = self._height_intervals(
-                part, x_n, y_n, ground, None if lifts is None else lifts[:, part]
-            )
-            self._store_heights(part, *intervals)
-        self._block_extremes = self._extremes()
+        if self._kernel is not None:
+            self._compiled_heights(ground, lifts)
+        else:
+            self._numpy_heights(ground, lifts)
         self.ground = ground
         self._profiled = profile is not None
         self.ground_refreshes += 1

@@ -1,0 +1,141 @@
+"""The compiled rebuild of `ObstacleProjector`'s height tables for a new ground.
+
+The tables (per pixel the slab's depth interval, where the drop interval starts and the
+floor crossing depth, in metres and in millimetres, and the blocks' extremes the kernel
+skips by) depend on the ground. The numpy functions of `obstacle` that build them at
+start-up take ~100 ms at 1280x720, most of it temporaries; a pitching body or a ramp moves
+the ground every frame, so this rebuilds them in one pass of plain loops. It is the same
+arithmetic as `obstacle._depth_interval`, `obstacle._drop_interval` and
+`obstacle._millimetre_interval` (their numpy code is the reference: see the tests), with
+the ramp's lifts: the slab's top, its bottom and the floor crossing each measured above
+the ground where the line of sight is at that height (`GroundProfile.ground_under`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from scanfuse.compiled import compiled
+
+_LEVEL_RAY = 1e-12
+_MM_ROUNDING = 1e-6
+_MILLIMETRE = 0.001
+_UINT16_MAX = 65535.0
+DROP_NOISE_SIGMAS = 6.0
+
+
+def _millimetres(lo: float, hi: float) -> tuple[int, int]:
+    """`obstacle._millimetre_interval` of one interval."""
+    lo_mm = math.ceil(min(max(lo / _MILLIMETRE - _MM_ROUNDING, 1.0), _UINT16_MAX))
+    hi_mm = math.floor(min(max(hi / _MILLIMETRE + _MM_ROUNDING, 0.0), _UINT16_MAX))
+    if lo_mm > hi_mm:
+        return int(_UINT16_MAX), 0
+    return lo_mm, hi_mm
+
+
+def _tables(
+    x_n: Any,
+    y_n: Any,
+    horizontal: Any,
+    normal: Any,
+    offset: float,
+    lifts: Any,
+    limits: Any,
+    drops: Any,
+    metres_lo: Any,
+    metres_hi: Any,
+    metres_drop: Any,
+    metres_floor: Any,
+    millimetres_lo: Any,
+    millimetres_hi: Any,
+    millimetres_drop: Any,
+    millimetres_floor: Any,
+) -> None:
+    """Per pixel the tables (`ObstacleProjector`'s): lo, hi, drop_lo, floor in float32
+    metres; lo, hi, drop_lo in uint16 millimetres and the floor in float32 millimetres.
+
+    `limits` = (min_obstacle_height, max_obstacle_height, range_min, range_max); `drops` =
+    (on, min_depth, min_width, noise); `lifts` (3 x pixels, or 0 columns: none) the ground's
+    height above the plane at the slab's top, its bottom and the floor crossing.
+    """
+    min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
+    with_lifts = lifts.shape[1] > 0
+    with_drops = drops[0] > 0.0
+    size = min(x_n.size, y_n.size, metres_lo.size, metres_hi.size, metres_drop.size)
+    size = min(size, metres_floor.size, millimetres_lo.size, millimetres_hi.size)
+    size = min(size, millimetres_drop.size, millimetres_floor.size)
+    if with_lifts:
+        size = min(size, lifts.shape[1])
+    if with_drops:
+        size = min(size, horizontal.size)
+    for i in range(size):
+        a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
+        b_top = offset - lifts[0, i] if with_lifts else offset
+        b_bottom = offset - lifts[1, i] if with_lifts else offset
+        b_floor = offset - lifts[2, i] if with_lifts else offset
+        if not math.isfinite(a_z):
+            lo, hi = math.inf, -math.inf
+        elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
+            z_top = (max_h - b_top) / a_z
+            z_bottom = (min_h - b_bottom) / a_z
+            lo = max(min(z_top, z_bottom), range_min)
+            hi = min(max(z_top, z_bottom), range_max)
+        else:
+            inside = min_h <= b_bottom and b_top <= max_h
+            lo = range_min if inside else math.inf
+            hi = range_max if inside else -math.inf
+        drop_lo, drop_hi, floor = math.inf, -math.inf, math.nan
+        if with_drops:
+            crossing = -b_floor / a_z if a_z != 0.0 else math.nan
+            if a_z < -_LEVEL_RAY and range_min <= crossing <= range_max:
+                margin = drops[1] / -a_z
+                if drops[2] > 0.0:
+                    margin = max(margin, drops[2] / horizontal[i])
+                margin = max(margin, DROP_NOISE_SIGMAS * drops[3] * crossing * crossing)
+                if math.isfinite(margin):
+                    drop_lo, drop_hi, floor = crossing + margin, math.inf, crossing
+        metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
+        lo_mm, hi_mm = millimetres(lo, hi)
+        millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm
+        millimetres_drop[i] = millimetres(drop_lo, drop_hi)[0]
+        millimetres_floor[i] = floor / _MILLIMETRE
+
+
+def _extremes(
+    lo: Any,
+    hi: Any,
+    drop_lo: Any,
+    height: int,
+    width: int,
+    bands: Any,
+    block: int,
+    least: Any,
+    greatest: Any,
+    drop_least: Any,
+) -> None:
+    """`obstacle._block_extremes`: per row and block of each band the least lo, greatest hi
+    and least drop_lo (least[row, bands[b, 2] + k] for block k of band b)."""
+    size = min(lo.size, hi.size, drop_lo.size, height * width)
+    blocks = min(least.shape[1], greatest.shape[1], drop_least.shape[1])
+    rows = min(height, least.shape[0], greatest.shape[0], drop_least.shape[0])
+    for row in range(rows):
+        for b in range(bands.shape[0]):
+            start, stop, k = bands[b, 0], min(bands[b, 1], width), bands[b, 2]
+            for block_start in range(start, stop, block):
+                first = row * width + block_start
+                last = min(row * width + min(block_start + block, stop), size)
+                if not (0 <= k < blocks and first < last):
+                    break
+                low, high, drop = lo[first], hi[first], drop_lo[first]
+                for index in range(first + 1, last):
+                    low = min(low, lo[index])
+                    high = max(high, hi[index])
+                    drop = min(drop, drop_lo[index])
+                least[row, k], greatest[row, k], drop_least[row, k] = low, high, drop
+                k += 1
+
+
+millimetres = compiled(_millimetres)
+tables = compiled(_tables, error_model='numpy')
+extremes = compiled(_extremes)
