@@ -37,6 +37,15 @@ MAX_RANGE = 1000.0  # metres, depth camera range limits
 MAX_TIME_OFFSET = 10.0  # seconds: 10 s between a scan and an image is no longer one moment
 MAX_CAMERA_TIMEOUT = 60.0  # seconds
 MAX_OBSTACLE_MIN_POINTS = 64  # per slot and frame the kernel keeps this many nearest points
+# Cells of the obstacle memory's rolling grid at most: 2^21 (about 60 MB of arrays). The grid
+# has `memory_grid_side` cells a side; MAX_MEMORY_RADIUS fits with the default memory_cell.
+MAX_MEMORY_CELLS = 1 << 21
+MAX_MEMORY_RADIUS = 18.0  # metres
+
+
+def memory_grid_side(radius: float, cell: float) -> int:
+    """Cells along one side of the memory's rolling grid (covers the radius with a margin)."""
+    return math.ceil(2.0 * radius / cell) + 2
 
 
 def _metres(default: float, description: str, *, bound: float = MAX_MOUNTING_OFFSET) -> Any:
@@ -254,7 +263,13 @@ class FusionConfig(BaseModel):
         ),
     )
     memory_radius: float = Field(
-        2.0, gt=0.0, le=20.0, description='metres around the robot obstacles are remembered'
+        2.0,
+        gt=0.0,
+        le=MAX_MEMORY_RADIUS,
+        description=(
+            'metres around the robot obstacles are remembered; at most about 723 memory_cell '
+            '(the grid holds 2^21 cells)'
+        ),
     )
     memory_time: float = Field(
         20.0, gt=0.0, le=3600.0, description='seconds an obstacle is remembered unless re-seen'
@@ -327,6 +342,14 @@ class FusionConfig(BaseModel):
                 f'max_obstacle_height ({self.max_obstacle_height})'
             )
             raise ValueError(msg)
+        side = memory_grid_side(self.memory_radius, self.memory_cell)
+        if side * side > MAX_MEMORY_CELLS:
+            msg = (
+                f'memory_radius {self.memory_radius} m with memory_cell {self.memory_cell} m needs '
+                f'{side * side} memory cells (at most {MAX_MEMORY_CELLS}): make memory_cell at '
+                f'least {_smallest_cell(self.memory_radius):.4f} m or memory_radius smaller'
+            )
+            raise ValueError(msg)
         if self.d2l_compat and self.scan_row is not None:
             msg = (
                 'd2l_compat reproduces depthimage_to_laserscan, whose band is always centred '
@@ -376,6 +399,12 @@ class FusionConfig(BaseModel):
         current = self.model_dump(exclude={'sources'})
         current.update(sources_to_params(self.sources))
         return self.from_dict({**current, **changes})
+
+
+def _smallest_cell(radius: float) -> float:
+    """The smallest memory_cell (to 0.1 mm, rounded up) whose grid fits `radius`."""
+    cell = 2.0 * radius / (math.isqrt(MAX_MEMORY_CELLS) - 3)
+    return math.ceil(cell * 1e4) / 1e4
 
 
 def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:

@@ -250,24 +250,31 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ configuration
 
     def reconfigure(self, config: FusionConfig) -> None:
-        """Use `config` from the next scan on (tables are rebuilt, odometry limits reset)."""
+        """Use `config` from the next scan on (tables are rebuilt, odometry limits reset).
+
+        Everything new is built before anything is changed: a configuration refused here
+        (ScanfuseError) leaves the stream as it was.
+        """
+        pipeline = FusionPipeline(config)
+        parameters = Extrinsics.from_config(config)
+        extras = ExtraSources(config)
+        settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         previous = getattr(self, 'config', None)
         if previous is not None and previous.memory_scan_matching != config.memory_scan_matching:
             # The remembered points lie in the corrected frame or odometry's: not in the other.
             self._drop_memory('memory_scan_matching changed')
         self.config = config
-        self.pipeline = FusionPipeline(config)
-        self._parameters = Extrinsics.from_config(config)
+        self.pipeline = pipeline
+        self._parameters = parameters
         self._max_offset_ns = seconds_to_ns(config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
-        self.extras = ExtraSources(config)
+        self.extras = extras
         self.assembler: FragmentAssembler[T] | None = (
             FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
         )
-        settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         if not config.memory:
             self.memory = None
             self.drift.reset()

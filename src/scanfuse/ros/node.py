@@ -440,9 +440,16 @@ class ScanfuseNode:
             self.rosout.warning(f'parameter change rejected: {reason}')
             return SetParametersResult(successful=False, reason=reason)
         merged = {**current, **changes}
-        config = config_from_ros(merged)
-        settings = settings_from_ros(merged)
-        self.live.reconfigure(config)
+        try:
+            config = config_from_ros(merged)
+            settings = settings_from_ros(merged)
+            self.live.reconfigure(config)
+        # A change the checks let through but the stream cannot take is refused, never
+        # ends the node: the stream keeps its old configuration (`FusionStream.reconfigure`).
+        except Exception as err:  # noqa: BLE001
+            reason = f'cannot apply {changes}: {err}'
+            self.rosout.warning(f'parameter change rejected: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
         self.live.pair_wait = settings.pair_wait
         self.live.lidar_timeout = settings.lidar_timeout
         self.rosout.info(f'parameters changed: {changes}')
