@@ -28,6 +28,7 @@ from scanfuse.convert.cloud import lidar_points, points_scan
 from scanfuse.errors import ScanfuseError
 from scanfuse.frames import frame_name
 from scanfuse.pipeline import FusionPipeline
+from scanfuse.scan import normalized_ranges
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
 if TYPE_CHECKING:
@@ -136,6 +137,9 @@ class ExtraSources:
     # ------------------------------------------------------------ inputs
 
     def add_scan(self, name: str, scan: Scan) -> None:
+        # A driver's error values (a Hokuyo's 0.0 "no return") are no readings: NaN, as the
+        # first LiDAR's are (`normalized_ranges`), not points at the sensor's own origin.
+        scan = scan.with_ranges(normalized_ranges(scan))
         self._state[name].messages.append(_Message(scan.stamp_ns, scan.frame_id, scan))
 
     def add_camera_info(self, name: str, camera: CameraModel) -> None:
