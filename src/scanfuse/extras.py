@@ -100,6 +100,7 @@ class ExtraCounts:
     used: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)
     no_mounting: dict[str, int] = field(default_factory=dict)
+    no_return: dict[str, int] = field(default_factory=dict)  # cloud points at (0, 0, 0)
 
     def note(self, table: dict[str, int], name: str) -> None:
         table[name] = table.get(name, 0) + 1
@@ -159,6 +160,13 @@ class ExtraSources:
     def add_cloud(
         self, name: str, stamp_ns: int, points: npt.NDArray[np.floating], frame_id: str
     ) -> None:
+        # Ouster, Hesai and Livox drivers write (0, 0, 0) for a beam without a return: no
+        # point at all, not an obstacle at the sensor's own origin. Dropped, counted.
+        no_return = np.all(points == 0.0, axis=1)
+        dropped = int(np.count_nonzero(no_return))
+        if dropped:
+            points = points[~no_return]
+            self.counts.no_return[name] = self.counts.no_return.get(name, 0) + dropped
         self._state[name].messages.append(_Message(stamp_ns, frame_name(frame_id), points))
 
     # ------------------------------------------------------------ contributions

@@ -504,6 +504,8 @@ class LiveFusion:
             window.source_used[name] = used - used_before.get(name, 0)
             window.source_missed[name] = missing + no_mounting - missed_before.get(name, 0)
             values[f'source {name}'] = f'used {used}, missing {missing}, no mounting {no_mounting}'
+            if name in extras.clouds:
+                values[f'source {name}'] += f', no-return points {counts.no_return.get(name, 0)}'
         self._sources_reported = (
             {name: counts.used.get(name, 0) for name in extras.names},
             {
