@@ -9,6 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scanfuse.config import FusionConfig
+from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
 from tests.support.render import square_room_ranges
 from tests.test_sources import (
@@ -63,3 +65,75 @@ def test_a_clouds_zero_points_are_no_returns_dropped_and_counted():
     assert reading(out.fused, math.pi) == math.inf  # nothing behind: no obstacle at 0.5 m
     assert np.nanmin(out.fused.ranges) == pytest.approx(1.5, abs=0.01)
     assert stream.extras.counts.no_return == {'points': 1000}
+
+
+def hokuyo_scan(stamp=NS, *, angle_min=-0.75 * math.pi, count=540, increment=None):
+    """A 270-degree scan with range_min 0 (as a Hokuyo URG publishes it): a wall 2 m away,
+    and 0.0 for every ninth return that failed."""
+    increment = 1.5 * math.pi / count if increment is None else increment
+    ranges = np.full(count, 2.0, dtype=np.float32)
+    ranges[::9] = 0.0
+    return Scan(
+        angle_min=angle_min,
+        angle_max=angle_min + increment * (count - 1),
+        angle_increment=increment,
+        range_min=0.0,
+        range_max=30.0,
+        ranges=ranges,
+        time_increment=1e-5,
+        frame_id='laser',
+        stamp_ns=stamp,
+    )
+
+
+def published(out, token_scan: Scan) -> Scan:
+    """What an adapter publishes for `out`: the fused scan, else the LiDAR's own message."""
+    return token_scan if out.fused is None else out.fused
+
+
+@pytest.mark.parametrize(
+    'changes',
+    [{}, {'full_circle': True}, {'assemble_fragments': True}],
+    ids=['pass-through', 'full_circle', 'fragments'],
+)
+def test_a_passed_through_scan_publishes_a_zero_as_nan(changes):
+    """Issue 26.5: the README promises a Hokuyo's 0.0 is published as NaN; passed through
+    (no camera), the scan kept its zeros: republished as they came, or rebuilt with them
+    (full_circle, fragments). Every published finite reading lies inside its limits and is
+    positive."""
+    stream: FusionStream[Scan] = FusionStream(FusionConfig(memory=False, **changes))
+    out = []
+    if changes.get('assemble_fragments'):
+        # Three fragments of 180 readings each, one revolution of 270 degrees, twice.
+        for turn in range(2):
+            for piece in range(3):
+                whole = hokuyo_scan(stamp=NS * (turn + 1) + piece * 1000)
+                start = piece * 180
+                fragment = replace(
+                    whole,
+                    angle_min=whole.angle_min + start * whole.angle_increment,
+                    angle_max=whole.angle_min + (start + 179) * whole.angle_increment,
+                    ranges=whole.ranges[start : start + 180],
+                )
+                out += stream.add_scan(fragment, fragment, NS * (turn + 1) + piece * 1000)
+        out += stream.finish()
+    else:
+        scan = hokuyo_scan()
+        out = stream.add_scan(scan, scan, NS)
+    assert out
+    for output in out:
+        scan = published(output, output.token)
+        finite = np.isfinite(scan.ranges)
+        assert finite.sum() >= 400
+        assert np.all(scan.ranges[finite] > 0.0)
+        assert np.all(scan.ranges[finite] >= scan.range_min)
+        assert np.all(scan.ranges[finite] <= scan.range_max)
+        np.testing.assert_array_equal(scan.ranges[finite], 2.0)
+
+
+def test_a_passed_through_scan_without_error_values_keeps_its_own_bytes():
+    """Issue 26.5: only a scan that holds a driver's error value is published anew."""
+    scan = replace(hokuyo_scan(), ranges=np.full(540, 2.0, dtype=np.float32))
+    stream: FusionStream[Scan] = FusionStream(FusionConfig(memory=False))
+    (out,) = stream.add_scan(scan, scan, NS)
+    assert out.fused is None  # the adapter republishes the message as it came

@@ -58,7 +58,7 @@ from scanfuse.memory import (
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
-from scanfuse.scan import full_circle
+from scanfuse.scan import full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import Extrinsics, Transform
 
@@ -570,11 +570,13 @@ class FusionStream(Generic[T]):
         self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
     ) -> StreamOutput[T]:
         self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's are.
+        clean = _without_error_values(lidar)
         output = StreamOutput(
             token=pending.token,
-            lidar=lidar,
+            lidar=clean,
             # A scan that is not one received message as it came is published anew.
-            fused=lidar if lidar is not pending.scan or pending.assembled else None,
+            fused=clean if clean is not pending.scan or pending.assembled else None,
             depth_scan=None,
             arrived_ns=pending.arrived_ns,
             passed=reason,
@@ -930,6 +932,15 @@ class FusionStream(Generic[T]):
         if key not in self._warned:
             self._warned.add(key)
             logger.warning(message)
+
+
+def _without_error_values(scan: Scan) -> Scan:
+    """`scan` with every finite value that is no real reading (`normalized_ranges`) as NaN;
+    `scan` itself when it holds none, so that its own bytes can be published."""
+    ranges = normalized_ranges(scan)
+    if np.array_equal(ranges, scan.ranges, equal_nan=True):
+        return scan
+    return scan.with_ranges(ranges)
 
 
 def _planar(transform: StampedTransform) -> PlanarPose:

@@ -396,9 +396,8 @@ class LiveFusion:
 
     def _instant(self, result: StreamOutput[bytes]) -> bytes | None:
         """The fused scan without the memory; the LiDAR's own bytes when nothing was fused."""
-        if result.instant is not None:
-            return self._cdr(result.instant)
-        return self._cdr(result.lidar) if result.deskewed else result.token
+        scan = result.instant if result.instant is not None else result.fused
+        return result.token if scan is None else self._cdr(scan)
 
     def _cdr(self, scan: Scan | None) -> bytes | None:
         return None if scan is None else scan_to_cdr(scan, self.store)
