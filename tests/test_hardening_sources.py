@@ -4,12 +4,15 @@ fragments and pass-through publish from a driver's error values and odd scans.""
 from __future__ import annotations
 
 import math
+import tracemalloc
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from scanfuse.config import FusionConfig
+from scanfuse.errors import InputError
+from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
 from tests.support.render import square_room_ranges
@@ -137,3 +140,47 @@ def test_a_passed_through_scan_without_error_values_keeps_its_own_bytes():
     stream: FusionStream[Scan] = FusionStream(FusionConfig(memory=False))
     (out,) = stream.add_scan(scan, scan, NS)
     assert out.fused is None  # the adapter republishes the message as it came
+
+
+def moving_stream(**changes) -> FusionStream[int]:
+    """Memory on, with odometry of a robot driving at 0.2 m/s."""
+    stream: FusionStream[int] = FusionStream(FusionConfig(**changes))
+    for k in range(30):
+        stream.add_odometry(k * NS // 10, PlanarPose(0.02 * k, 0.0, 0.0))
+    return stream
+
+
+@pytest.mark.parametrize(
+    ('changes', 'problem'),
+    [
+        ({'angle_increment': 1e-6}, r'makes 6.28e\+06 readings a turn \(at most 131072\)'),
+        ({'angle_increment': 5e-324}, 'readings a turn'),
+        ({'angle_increment': 13.0}, 'is more than a turn'),
+        ({'angle_min': -1e12}, 'not both within'),
+        ({'time_increment': math.nan}, 'time_increment nan s'),
+        ({'time_increment': math.inf}, 'time_increment inf s'),
+    ],
+)
+def test_a_scan_whose_numbers_would_size_allocations_is_refused_where_it_enters(changes, problem):
+    """Issues 26.2 and 26.7: an increment of 1e-7 made the memory projection and full_circle
+    allocate 3 * 2 pi / increment values per scan (1.4 GB; 1e-9 was OOM-killed); a huge
+    angle_min, a denormal or over-a-turn increment, a NaN time_increment raised ValueError,
+    OverflowError or ZeroDivisionError from the middle of the stream. Each is refused at
+    add_scan (InputError), nothing is allocated for it, and the stream goes on."""
+    stream = moving_stream(full_circle=True)
+    good = hokuyo_scan(stamp=NS)
+    odd = replace(good, stamp_ns=NS + NS // 10, **changes)
+    odd = replace(odd, angle_max=odd.angle_min + odd.angle_increment * (len(odd) - 1))
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match=problem):
+            stream.add_scan(odd, 1, NS + NS // 10)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20  # bytes: no grid of the odd scan's size
+    out = stream.add_scan(good, 0, NS)
+    out += stream.add_scan(replace(good, stamp_ns=2 * NS // 10 + NS), 2, NS + 2 * NS // 10)
+    out += stream.finish()
+    assert [o.token for o in out] == [0, 2]
+    assert all(len(o.lidar) == 720 for o in out)  # 360 degrees of 0.5-degree readings

@@ -58,7 +58,7 @@ from scanfuse.memory import (
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
-from scanfuse.scan import full_circle, normalized_ranges
+from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import Extrinsics, Transform
 
@@ -341,15 +341,22 @@ class FusionStream(Generic[T]):
 
         Scans of the first LiDAR (`source` None or its name) make output scans; those of
         other named LiDARs are kept for them. A scan with no readings is refused (InputError):
-        it has no grid to fuse onto, nothing to pass through.
+        it has no grid to fuse onto, nothing to pass through. So is one whose numbers would
+        size allocations without bound (`check_scan_limits`); the adapter counts both as
+        malformed (`note_malformed`).
         """
+        topic = source or self.config.scan_topic
         if scan.ranges.size == 0:
-            topic = source or self.config.scan_topic
             msg = (
                 f'LiDAR scan on {topic} has no readings (angle_min {scan.angle_min:g}, '
                 f'angle_max {scan.angle_max:g}): nothing to fuse, skipped; check the driver'
             )
             raise InputError(msg)
+        try:
+            check_scan_limits(scan)
+        except InputError as err:
+            msg = f'LiDAR scan on {topic} skipped: {err}'
+            raise InputError(msg) from err
         if self._is_extra(source):
             self.extras.add_scan(str(source), scan)
             return self._release(now_ns)
@@ -451,7 +458,7 @@ class FusionStream(Generic[T]):
         out = []
         while self._pending:
             pending = self._pending.popleft()
-            out.append(self._resolve(pending))
+            out.append(self._settle(pending))
         return out
 
     def next_deadline_ns(self) -> float | None:
@@ -484,7 +491,7 @@ class FusionStream(Generic[T]):
     def _release(self, now_ns: int) -> list[StreamOutput[T]]:
         out = []
         while self._pending and self._ready(self._pending[0], now_ns):
-            out.append(self._resolve(self._pending.popleft()))
+            out.append(self._settle(self._pending.popleft()))
         self._prune_frames()
         return out
 
@@ -515,6 +522,26 @@ class FusionStream(Generic[T]):
         return best
 
     # ------------------------------------------------------------ one scan
+
+    def _settle(self, pending: _Pending[T]) -> StreamOutput[T]:
+        """`_resolve`; a scan whose arithmetic fails is counted as malformed and passes
+        through alone, so the scans released with it still leave."""
+        try:
+            return self._resolve(pending)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:
+            self.note_malformed('scan', err)
+            self.counts.passed[Passed.FUSION_FAILED] = (
+                self.counts.passed.get(Passed.FUSION_FAILED, 0) + 1
+            )
+            clean = _without_error_values(pending.scan)
+            return StreamOutput(
+                token=pending.token,
+                lidar=clean,
+                fused=clean if clean is not pending.scan or pending.assembled else None,
+                depth_scan=None,
+                arrived_ns=pending.arrived_ns,
+                passed=Passed.FUSION_FAILED,
+            )
 
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan

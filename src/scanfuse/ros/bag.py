@@ -920,7 +920,7 @@ class _BagJob:
                     writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
                     try:
                         emit(self._feed(connection, cdr, log_time))
-                    except (MessageError, SerdeError, ValueError, struct.error) as err:
+                    except (ScanfuseError, SerdeError, ValueError, struct.error) as err:
                         self._malformed(malformed, err, strict=strict)
                     progress.advance()
                 emit(stream.finish())

@@ -241,16 +241,29 @@ class LiveFusion:
             self.stream.note_malformed(f'scan ({source})' if extra else 'scan', err)
             return []
         if extra:
-            return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now), source=source))
+            return self._add_scan(scan, raw, now, source)
         self._last_scan = now
         self._window.scans += 1
         self._window.stamps.append(scan.stamp_ns)
-        if self._grid is None or not (
-            grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id
+        if len(scan) and (
+            self._grid is None
+            or not (grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id)
         ):
             self._grid = (scan.grid, scan.frame_id)
             self._prepare_tables()
-        return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now)))
+        return self._add_scan(scan, raw, now, None)
+
+    def _add_scan(
+        self, scan: Scan, raw: RawMessage, now: float, source: str | None
+    ) -> list[Output]:
+        """A decoded scan into the stream; one it refuses is counted as malformed, and the
+        scans released meanwhile still leave."""
+        try:
+            released = self.stream.add_scan(scan, bytes(raw), _ns(now), source=source)
+        except ScanfuseError as err:
+            self.stream.note_malformed(f'scan ({source})' if source else 'scan', err)
+            released = self.stream.tick(_ns(now))
+        return self._outputs(released)
 
     def on_depth(self, raw: RawMessage, now: float, source: str | None = None) -> list[Output]:
         self._note_start(now)
