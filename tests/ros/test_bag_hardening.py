@@ -12,7 +12,16 @@ import yaml
 from rosbags.highlevel import AnyReader
 
 from scanfuse.cli import main
-from scanfuse.ros.messages import LASER_SCAN, scan_from_msg, scan_to_cdr, typestore
+from scanfuse.frames import StampedTransform
+from scanfuse.ros.messages import (
+    LASER_SCAN,
+    TF_MESSAGE,
+    scan_from_msg,
+    scan_to_cdr,
+    serialize,
+    tf_message_to_msg,
+    typestore,
+)
 from tests.support.synthetic import Scene, scene_messages, write_bag
 
 
@@ -58,3 +67,29 @@ def test_odd_scans_are_listed_as_malformed_and_every_other_scan_is_fused(tmp_pat
     increment = fused[0].angle_increment
     assert all(len(scan) == math.floor(2 * math.pi / increment + 1e-9) for scan in fused)
     assert all(np.isfinite(scan.ranges).any() for scan in fused)
+
+
+def test_one_bad_tf_message_among_good_odometry_is_skipped_and_listed(tmp_path, capsys):
+    """Issue 26.8: a single odom -> base_link transform with a NaN quaternion among 200 good
+    ones refused the whole bag; now it is skipped and listed, as a bad /odom message is, and
+    the scans are fused with the TF odometry of the others."""
+    scene = Scene(duration=1.0)
+    messages = scene_messages(scene)
+    store = typestore()
+    odometry = []
+    for k in range(200):
+        stamp = scene.start_ns + k * 5_000_000
+        transform = StampedTransform('odom', 'base_link', (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+        message = tf_message_to_msg([replace(transform, stamp_ns=stamp)], store)
+        if k == 100:
+            rotation = message.transforms[0].transform.rotation
+            rotation.x = rotation.y = rotation.z = rotation.w = math.nan
+        odometry.append(('/tf', TF_MESSAGE, stamp, serialize(message, TF_MESSAGE, store)))
+    source = write_bag(tmp_path / 'in', sorted(messages + odometry, key=lambda m: m[2]))
+    assert main(['bag', str(source), str(tmp_path / 'out')]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r'malformed messages skipped\W+1\b', out)
+    assert re.search(r'skipped: /tf\W+/tf message 100 ', out)
+    assert re.search(r'scans motion-compensated\W+10\b', out)
+    fused = read_scans(tmp_path / 'out', '/scan_fused')
+    assert len(fused) == len(scene.scan_stamps())

@@ -831,11 +831,18 @@ class _BagJob:
         return self.stream.extrinsics_source
 
     def _read_mounting(self) -> None:
-        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it)."""
+        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it).
+
+        A TF message that cannot be used (a NaN quaternion) is passed over here; the pass
+        skips and lists it (or, with --strict, stops at it) as it does any malformed message.
+        """
         for topic, static in ((TF_STATIC_TOPIC, True), (TF_TOPIC, False)):
             connections = [c for c in self.connections(topic) if self.msgtype(c) == TF_MESSAGE]
             for connection, _, raw in self.messages(connections):
-                transforms = transforms_from_msg(self.decode(connection, raw))
+                try:
+                    transforms = transforms_from_msg(self.decode(connection, raw))
+                except (ScanfuseError, SerdeError, ValueError, struct.error):
+                    continue
                 self.stream.add_transforms(transforms, static=static, odometry=False)
 
     # ------------------------------------------------------------ the pass
