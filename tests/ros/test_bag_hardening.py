@@ -3,11 +3,15 @@ tmp_path, as tests/ros/test_bag.py does)."""
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import math
 import re
+import sqlite3
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
@@ -22,7 +26,7 @@ from scanfuse.ros.messages import (
     tf_message_to_msg,
     typestore,
 )
-from tests.support.synthetic import Scene, scene_messages, write_bag
+from tests.support.synthetic import Scene, scene_messages, write_bag, write_scene_bag
 
 
 def params_file(tmp_path, **values):
@@ -93,3 +97,38 @@ def test_one_bad_tf_message_among_good_odometry_is_skipped_and_listed(tmp_path, 
     assert re.search(r'scans motion-compensated\W+10\b', out)
     fused = read_scans(tmp_path / 'out', '/scan_fused')
     assert len(fused) == len(scene.scan_stamps())
+
+
+def _digest(path):
+    files = sorted(p for p in path.rglob('*') if p.is_file())
+    return hashlib.sha256(b''.join(p.read_bytes() for p in files)).hexdigest()
+
+
+@pytest.mark.parametrize(
+    ('damage', 'problem'),
+    [
+        ("UPDATE messages SET data = 'hello' WHERE id = 5", 'its data is str, not bytes'),
+        ('UPDATE messages SET timestamp = -5 WHERE id = 5', 'its log time is -5 ns'),
+    ],
+    ids=['text-data', 'negative-timestamp'],
+)
+def test_a_db3_bag_with_text_data_or_a_negative_timestamp_is_one_clean_line(
+    tmp_path, capsys, damage, problem
+):
+    """Issue 26.9: a db3 whose data column holds TEXT, or whose timestamp is negative, ended
+    `scanfuse bag` with a traceback (TypeError, OverflowError); now one line, exit 1, the
+    input untouched and no output."""
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.5), storage='sqlite3')
+    (database,) = source.glob('*.db3')
+    with contextlib.closing(sqlite3.connect(database)) as connection:
+        connection.execute(damage)
+        connection.commit()
+    before = _digest(source)
+    assert main(['bag', str(source), str(tmp_path / 'out')]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith('error: cannot read bag ')
+    assert problem in ' '.join(err.split())
+    assert 'Traceback' not in err
+    assert _digest(source) == before
+    assert not (tmp_path / 'out').exists()
+    assert not list(tmp_path.glob('.out.*'))

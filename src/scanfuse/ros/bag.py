@@ -534,6 +534,22 @@ def _guard_read(
         raise BagError(msg) from err
 
 
+def _check_stored(source: Path, topic: str, index: int, log_time: int, raw: object) -> None:
+    """A message as its storage holds it: bytes at a log time of zero or later. A db3 whose
+    data column holds TEXT, or whose timestamp is negative, is no bag rosbags wrote."""
+    problem = None
+    if not isinstance(raw, bytes | bytearray | memoryview):
+        problem = f'its data is {type(raw).__name__}, not bytes'
+    elif not isinstance(log_time, int) or log_time < 0:
+        problem = f'its log time is {log_time} ns, before 1970'
+    if problem is not None:
+        msg = (
+            f'cannot read bag {source}: {topic} message {index}: {problem}; '
+            'is it complete and a bag?'
+        )
+        raise BagError(msg)
+
+
 def _fresh_store(distro: Distro) -> Typestore:
     """A private typestore of `distro` (types of ROS 1 bags may be added to it)."""
     store = get_typestore(Stores.EMPTY)
@@ -645,6 +661,7 @@ class _BagJob:
                 return
             connection, log_time, raw = item
             index = indices.get(connection.topic, 0)
+            _check_stored(self.source, connection.topic, index, log_time, raw)
             indices[connection.topic] = index + 1
             self.position = MessagePosition(
                 connection.topic,
