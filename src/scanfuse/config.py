@@ -25,6 +25,9 @@ from scanfuse.sources import (
 )
 
 NODE_NAME = 'scanfuse'
+# What a parameter file may be (`read_ros_params`): the largest example is 4 KiB.
+MAX_PARAMS_BYTES = 1 << 20
+MAX_PARAMS_DEPTH = 32
 # Parameters of the live node alone (ros.params.NodeSettings), which the one parameter file
 # may hold beside the fusion's: the bag processor and the simulator leave them out.
 NODE_ONLY = frozenset({'pair_wait', 'lidar_timeout'})
@@ -433,13 +436,33 @@ def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
 
 
 def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """The `ros__parameters` of `node_name` in a ROS 2 parameter file."""
+    """The `ros__parameters` of `node_name` in a ROS 2 parameter file.
+
+    At most MAX_PARAMS_BYTES are read and MAX_PARAMS_DEPTH levels nested; YAML aliases are
+    refused, as ROS 2's own parameter parser refuses them (one alias can stand for gigabytes:
+    the "billion laughs").
+    """
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+        with path.open('rb') as file:
+            data = file.read(MAX_PARAMS_BYTES + 1)
     except OSError as err:
         msg = f'cannot read parameter file {path}: {err.strerror}'
         raise ConfigError(msg) from err
+    if len(data) > MAX_PARAMS_BYTES:
+        msg = (
+            f'parameter file {path} is larger than {MAX_PARAMS_BYTES // 1024} KiB; '
+            'is it a parameter file?'
+        )
+        raise ConfigError(msg)
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as err:
+        msg = f'parameter file {path} is not UTF-8 text (byte {err.start}): {err.reason}'
+        raise ConfigError(msg) from err
+    try:
+        _check_yaml_shape(path, text)
+        document = yaml.safe_load(text)
     except yaml.YAMLError as err:
         msg = f'parameter file {path} is not valid YAML: {err}'
         raise ConfigError(msg) from err
@@ -458,3 +481,27 @@ def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, A
         f'(found: {found}); see examples/scanfuse.yaml'
     )
     raise ConfigError(msg)
+
+
+def _check_yaml_shape(path: Path, text: str) -> None:
+    """Refuse aliases and nesting deeper than MAX_PARAMS_DEPTH, from the event stream (which
+    needs no recursion, unlike the loader that would meet them)."""
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        line = event.start_mark.line + 1 if event.start_mark is not None else '?'
+        if isinstance(event, yaml.AliasEvent):
+            msg = (
+                f'parameter file {path} uses a YAML alias (line {line}); '
+                "ROS 2's parameter parser refuses them too: write the values out"
+            )
+            raise ConfigError(msg)
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_PARAMS_DEPTH:
+                msg = (
+                    f'parameter file {path} nests more than {MAX_PARAMS_DEPTH} levels deep '
+                    f'(line {line}); is it a parameter file?'
+                )
+                raise ConfigError(msg)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1

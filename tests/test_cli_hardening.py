@@ -1,0 +1,69 @@
+"""Regression tests of issue 26 through the `scanfuse` command line: hostile parameter files
+and poor errors are one clean line and exit 1, found before any work is done."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from scanfuse.cli import main
+from tests.support.synthetic import Scene, write_scene_bag
+
+LAUGHS = '\n'.join(
+    [
+        'a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]',
+        *(
+            f'{name}: &{name} [{", ".join([f"*{previous}"] * 10)}]'
+            for previous, name in zip('abcdefgh', 'bcdefghi', strict=True)
+        ),
+        'scanfuse:',
+        '  ros__parameters:',
+        '    scan_topic: *i',
+        '',
+    ]
+)
+
+
+def hostile_file(tmp_path, kind: str) -> str:
+    """A parameter file that is no parameter file: bytes, depth, aliases, or endless."""
+    if kind == 'dev-zero':
+        return '/dev/zero'
+    path = tmp_path / f'{kind}.yaml'
+    if kind == 'not-utf-8':
+        path.write_bytes(b'scanfuse:\n  ros__parameters:\n    scan_topic: /sc\xffan\n')
+    elif kind == 'nested':
+        path.write_text('[' * 20_000 + ']' * 20_000 + '\n', encoding='utf-8')
+    else:
+        path.write_text(LAUGHS, encoding='utf-8')
+    return str(path)
+
+
+PROBLEMS = {
+    'not-utf-8': 'is not UTF-8 text',
+    'nested': 'nests more than 32 levels deep',
+    'billion-laughs': 'uses a YAML alias',
+    'dev-zero': 'is larger than 1024 KiB',
+}
+
+
+@pytest.mark.parametrize('kind', list(PROBLEMS))
+@pytest.mark.parametrize('command', ['bag', 'simulate', 'evaluate'])
+def test_a_hostile_parameter_file_is_one_clean_line(tmp_path, capsys, command, kind):
+    """Issue 26.10: non-UTF-8 bytes, YAML nested 20 000 deep, a billion-laughs file under a
+    real key (2.9 GB expanded) and `--params /dev/zero` (3.4 GB read) ended `bag`, `simulate`
+    and `evaluate` with a traceback, or after gigabytes; now one line each, exit 1."""
+    params = hostile_file(tmp_path, kind)
+    if command == 'bag':
+        source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+        argv = ['bag', str(source), str(tmp_path / 'out'), '--params', params]
+    else:
+        argv = [command, '--out', str(tmp_path / 'out'), '--params', params]
+    start = time.monotonic()
+    assert main(argv) == 1
+    assert time.monotonic() - start < 30.0
+    err = capsys.readouterr().err
+    assert err.startswith('error: ')
+    assert PROBLEMS[kind] in ' '.join(err.split())
+    assert 'Traceback' not in err
+    assert not (tmp_path / 'out').exists()
