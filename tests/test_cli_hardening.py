@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import pytest
+import yaml
 
 from scanfuse.cli import main
 from tests.support.synthetic import Scene, write_scene_bag
@@ -67,3 +68,48 @@ def test_a_hostile_parameter_file_is_one_clean_line(tmp_path, capsys, command, k
     assert PROBLEMS[kind] in ' '.join(err.split())
     assert 'Traceback' not in err
     assert not (tmp_path / 'out').exists()
+
+
+@pytest.mark.parametrize('duration', ['inf', 'nan', '0', '-1'])
+def test_simulate_refuses_a_duration_that_is_not_a_positive_finite_time(tmp_path, capsys, duration):
+    """Issue 26.11: `simulate --duration inf` ended in a traceback."""
+    argv = ['simulate', '--out', str(tmp_path / 'run.mcap'), '--duration', duration]
+    assert main(argv) == 1
+    err = ' '.join(capsys.readouterr().err.split())
+    assert f'--duration must be more than 0 and at most 86400 s, got {float(duration)}' in err
+    assert not (tmp_path / 'run.mcap').exists()
+
+
+def test_evaluate_refuses_an_existing_file_as_out_before_any_work(tmp_path, capsys):
+    """Issue 26.11: `evaluate --out EXISTING_FILE` failed with a traceback after two minutes
+    of trials; the output is checked first now."""
+    existing = tmp_path / 'results'
+    existing.write_text('keep me', encoding='utf-8')
+    start = time.monotonic()
+    assert main(['evaluate', '--quick', '--out', str(existing)]) == 1
+    assert time.monotonic() - start < 10.0
+    err = ' '.join(capsys.readouterr().err.split())
+    assert f'error: --out {existing} exists and is not a folder' in err
+    assert existing.read_text(encoding='utf-8') == 'keep me'
+    assert main(['evaluate', '--quick', '--out', str(existing / 'below')]) == 1
+    assert 'is not a folder' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ('sources', 'where'),
+    [
+        ({'lidars': ['front', 'front']}, 'lidars'),
+        ({'lidars': ['front'], 'clouds': ['front']}, 'lidars and clouds'),
+    ],
+)
+def test_a_source_name_listed_twice_is_named(tmp_path, capsys, sources, where):
+    """Issue 26.11: `lidars: [a, a]`, or one name under lidars and clouds, said "Field
+    required" (the second listing found its section taken); now the duplicate is named."""
+    params = tmp_path / 'params.yaml'
+    values = {**sources, 'front': {'topic': '/scan'}}
+    params.write_text(yaml.safe_dump({'scanfuse': {'ros__parameters': values}}), encoding='utf-8')
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    assert main(['bag', str(source), str(tmp_path / 'out'), '--params', str(params)]) == 1
+    err = ' '.join(capsys.readouterr().err.split())
+    assert f"source name 'front' is listed twice ({where})" in err
+    assert 'Field required' not in err

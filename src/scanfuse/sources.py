@@ -165,6 +165,22 @@ def split_sources(values: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any
             name, field = key.split('.', 1)
             sections.setdefault(name, {})[field] = value
             del rest[key]
+    listed_names = [
+        (kind, str(name))
+        for kind in KINDS
+        if isinstance(lists[kind], list | tuple)
+        for name in lists[kind]
+    ]
+    seen: dict[str, str] = {}
+    for kind, name in listed_names:
+        if name in seen:
+            where = kind if seen[name] == kind else f'{seen[name]} and {kind}'
+            msg = (
+                f'source name {name!r} is listed twice ({where}); every source needs its own '
+                'name and section'
+            )
+            raise ConfigError(msg)
+        seen[name] = kind
     sources: dict[str, Any] = {}
     for kind in KINDS:
         names = lists[kind] or []
