@@ -184,3 +184,27 @@ def test_a_scan_whose_numbers_would_size_allocations_is_refused_where_it_enters(
     out += stream.finish()
     assert [o.token for o in out] == [0, 2]
     assert all(len(o.lidar) == 720 for o in out)  # 360 degrees of 0.5-degree readings
+
+
+def test_the_memory_scan_publishes_no_reading_below_its_range_min():
+    """Issue 26.12: after the robot pushed into a shelf, /scan_memory held readings below its
+    own range_min (4 mm against 0.05 m); REP-117: a published finite reading lies in its
+    limits. The box's front face 1.5 m ahead is remembered, then the robot drives to 3 cm
+    short of it without the camera: the face's middle is nearer than range_min, its ends
+    (0.1 m to the sides) are not."""
+    from tests.test_memory import BOX, Robot, config
+
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    robot.move_to(PlanarPose(BOX.x_min - 0.03, 0.0, 0.0), 3.0)
+    out = robot.scan(camera=False)
+    memory = out.memory_scan
+    assert memory is not None
+    finite = np.isfinite(memory.ranges)
+    assert finite.any()  # the face's ends
+    assert np.all(memory.ranges[finite] >= memory.range_min)
+    assert np.all(memory.ranges[finite] <= memory.range_max)
+    assert out.fused is not None
+    fused = np.isfinite(out.fused.ranges)
+    assert np.all(out.fused.ranges[fused] >= out.fused.range_min)

@@ -713,6 +713,11 @@ class FusionStream(Generic[T]):
             unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen, robot=robot)
         ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
+        # REP-117: a published finite reading lies inside its limits. A remembered point
+        # nearer than range_min (the robot pushed into it) is no reading of this scan, as
+        # the merge already treats it.
+        with np.errstate(invalid='ignore'):
+            ranges[(ranges < scan.range_min) | (ranges > scan.range_max)] = np.nan
         remembered = scan.with_ranges(
             ranges.astype(np.float32),
             range_min=scan.range_min,
