@@ -208,3 +208,28 @@ def test_the_memory_scan_publishes_no_reading_below_its_range_min():
     assert out.fused is not None
     fused = np.isfinite(out.fused.ranges)
     assert np.all(out.fused.ranges[fused] >= out.fused.range_min)
+
+
+@pytest.mark.parametrize(
+    'points',
+    [
+        np.array([[1.5, 0.0], [1.5, 0.05], [1.5, 0.1]]),  # N x 2
+        np.array([[1.5, 0.0, 0.1, 7.0], [1.5, 0.05, 0.1, 7.0]]),  # N x 4: intensity too
+        np.array([1.5, 0.0, 0.1, 1.5, 0.05, 0.1]),  # 1-D
+        np.array([['1.5', '0.0', '0.1']]),  # text
+    ],
+    ids=['n-by-2', 'n-by-4', 'flat', 'text'],
+)
+def test_add_cloud_refuses_anything_but_n_by_3_at_the_call(points):
+    """Issue 26.12: add_cloud accepted N x 2, N x 4 and 1-D arrays and a later scan
+    reshaped them into wrong points (or raised from the middle of fusion); now the call
+    refuses them and the next scans fuse what is good."""
+    stream: FusionStream[int] = FusionStream(cloud_config())
+    with pytest.raises(InputError, match=r'points must be an N x 3 array of real x, y, z'):
+        stream.add_cloud(NS, points, NS, 'base_link', 'points')
+    face = np.array([(1.5, y, 0.1) for y in np.linspace(-0.1, 0.1, 21)])
+    stream.add_cloud(NS, face, NS, 'base_link', 'points')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.fused is not None
+    assert np.nanmin(out.fused.ranges) == pytest.approx(1.5, abs=0.01)
+    assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)

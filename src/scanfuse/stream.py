@@ -398,6 +398,13 @@ class FusionStream(Generic[T]):
         if not self._is_extra(source):
             msg = f'no cloud source named {source!r}; clouds: {", ".join(self.extras.clouds)}'
             raise InputError(msg)
+        points = np.asarray(points)
+        if points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in 'fiu':
+            msg = (
+                f'cloud {source!r}: points must be an N x 3 array of real x, y, z (metres), got '
+                f'shape {points.shape} of {points.dtype}; pass only the x, y, z columns'
+            )
+            raise InputError(msg)
         self.extras.add_cloud(source, stamp_ns, points, frame_id)
         return self._release(now_ns)
 
