@@ -233,3 +233,30 @@ def test_add_cloud_refuses_anything_but_n_by_3_at_the_call(points):
     assert out.fused is not None
     assert np.nanmin(out.fused.ranges) == pytest.approx(1.5, abs=0.01)
     assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
+
+
+def test_finish_flushes_the_last_partial_revolution_of_fragments():
+    """Issue 26.12: finish() never gave out the fragment assembler's revolution begun, so a
+    bag's last fragments never reached /scan_fused. Two whole revolutions of three
+    fragments, then two fragments of a third: three scans, the last padded with NaN."""
+    stream: FusionStream[int] = FusionStream(FusionConfig(memory=False, assemble_fragments=True))
+    out = []
+    for turn in range(3):
+        for piece in range(3 if turn < 2 else 2):
+            whole = hokuyo_scan(stamp=NS * (turn + 1) + piece * 1000)
+            start = piece * 180
+            fragment = replace(
+                whole,
+                angle_min=whole.angle_min + start * whole.angle_increment,
+                angle_max=whole.angle_min + (start + 179) * whole.angle_increment,
+                ranges=whole.ranges[start : start + 180],
+            )
+            out += stream.add_scan(fragment, 10 * turn + piece, NS * (turn + 1) + piece * 1000)
+    assert [o.token for o in out] == [2, 12]
+    out += stream.finish()
+    assert [o.token for o in out] == [2, 12, 21]
+    last = out[-1].lidar
+    assert len(last) == 540
+    assert last.angle_min == pytest.approx(-0.75 * math.pi)
+    assert np.isnan(last.ranges[360:]).all()  # the third fragment never came
+    np.testing.assert_array_equal(last.ranges[:360][np.isfinite(last.ranges[:360])], 2.0)

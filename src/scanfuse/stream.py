@@ -370,6 +370,11 @@ class FusionStream(Generic[T]):
     def _enqueue(
         self, scan: Scan, token: T, now_ns: int, *, assembled: bool
     ) -> list[StreamOutput[T]]:
+        self._admit(scan, token, now_ns, assembled=assembled)
+        return self._release(now_ns)
+
+    def _admit(self, scan: Scan, token: T, now_ns: int, *, assembled: bool) -> None:
+        """`scan` joins the scans waiting for their depth frame."""
         self.counts.scans += 1
         if self._started_ns is None:
             self._started_ns = now_ns
@@ -384,7 +389,6 @@ class FusionStream(Generic[T]):
         self._pending.append(
             _Pending(scan, token, now_ns, now_ns + self.pair_wait_ns, assembled=assembled)
         )
-        return self._release(now_ns)
 
     def add_cloud(
         self,
@@ -461,7 +465,12 @@ class FusionStream(Generic[T]):
         return self._release(now_ns)
 
     def finish(self) -> list[StreamOutput[T]]:
-        """Every scan still waiting (end of a recording), fused with what has arrived."""
+        """Every scan still waiting (end of a recording), fused with what has arrived; with
+        fragment assembly, the revolution begun too (padded with NaN once one is known)."""
+        if self.assembler is not None:
+            arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
+            for revolution, token in self.assembler.flush():
+                self._admit(revolution, token, arrived or 0, assembled=True)
         out = []
         while self._pending:
             pending = self._pending.popleft()
