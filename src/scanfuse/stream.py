@@ -183,6 +183,7 @@ class StreamCounts:
     memory_dropped: int = 0  # times the memory was dropped (odometry lost or jumped)
     drift_matched: int = 0  # LiDAR scans whose match corrected the memory's odometry
     drift_refused: int = 0  # matches refused (the memory followed odometry alone)
+    odometry_ignored: int = 0  # samples of a second odometry source (see `add_odometry`)
     passed: dict[Passed, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
@@ -236,6 +237,7 @@ class FusionStream(Generic[T]):
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
+        self.odometry_source: str | None = None  # the odometry topic or TF, whichever came first
         self.memory: ObstacleMemory | None = None
         self._memory_segment: int | None = None  # odometry segment the points belong to
         # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
@@ -415,8 +417,27 @@ class FusionStream(Generic[T]):
     def _is_extra(self, source: str | None) -> bool:
         return source is not None and source in self.extras
 
-    def add_odometry(self, stamp_ns: int, pose: PlanarPose) -> None:
-        """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF)."""
+    def add_odometry(self, stamp_ns: int, pose: PlanarPose, *, source: str | None = None) -> None:
+        """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF).
+
+        `source` names where it came from (None: the odometry topic). Odometry is taken from
+        the first source that delivers; another's samples are ignored: a robot publishing
+        both /odom and TF odom -> base_link delivers one estimate twice, and the two streams
+        arrive interleaved out of stamp order.
+        """
+        name = source or self.config.odom_topic
+        if self.odometry_source is None:
+            self.odometry_source = name
+        elif name != self.odometry_source:
+            self.counts.odometry_ignored += 1
+            if f'odometry ignored {name}' not in self._warned:
+                self._warned.add(f'odometry ignored {name}')
+                logger.info(
+                    'odometry taken from %s; %s carries it too and is ignored',
+                    self.odometry_source,
+                    name,
+                )
+            return
         before = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
         self.odometry.add(stamp_ns, pose)
         after = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
@@ -443,7 +464,9 @@ class FusionStream(Generic[T]):
         for transform in transforms:
             if not static and transform.parent == odom and transform.child == base:
                 if odometry:
-                    self.add_odometry(transform.stamp_ns, _planar(transform))
+                    self.add_odometry(
+                        transform.stamp_ns, _planar(transform), source=f'TF {odom} -> {base}'
+                    )
             else:
                 mounting.append(transform)
         try:

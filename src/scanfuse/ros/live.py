@@ -450,6 +450,7 @@ class LiveFusion:
             'published': str(self.published),
             'passed through': str(counts.passed_through),
             'motion compensated': str(counts.compensated),
+            'odometry from': self.stream.odometry_source or 'none yet',
             'de-skewed': str(counts.deskewed),
             'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
             'memory dropped': str(counts.memory_dropped),
