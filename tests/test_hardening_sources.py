@@ -12,16 +12,20 @@ import numpy as np
 import pytest
 
 from scanfuse.config import FusionConfig
-from scanfuse.errors import InputError
+from scanfuse.errors import ConfigError, InputError
 from scanfuse.frames import StampedTransform
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
-from tests.support.render import square_room_ranges
+from tests.support.render import depth_image, square_room_ranges
 from tests.test_sources import (
+    BOX_AHEAD,
+    CAMERA,
     HALF,
     NS,
+    PITCH,
     base_lidar,
+    camera_pose,
     cloud_config,
     lidar_scan,
     reading,
@@ -286,3 +290,64 @@ def test_odometry_on_both_odom_and_tf_is_taken_from_the_first_and_says_which(cap
     assert stream.counts.odometry_ignored == 49
     assert 'odometry taken from /odom; TF odom -> base_link carries it too' in caplog.text
     assert len(stream.odometry) == 50
+
+
+def one_named_camera(**section) -> FusionConfig:
+    """One named camera (the first: it pairs with the LiDAR) 0.4 m up, with `section`."""
+    return FusionConfig.from_dict(
+        {
+            'use_tf': False,
+            'memory': False,
+            'obstacle_min_points': 1,
+            'lidar_height': 0.3,
+            'cameras': ['front_depth'],
+            'front_depth': {
+                'depth_topic': '/front/depth',
+                'camera_info_topic': '/front/info',
+                'z': 0.4,
+                'pitch': PITCH,
+                **section,
+            },
+        }
+    )
+
+
+def front_box_reading(config: FusionConfig, frame_age_ns: int = 10) -> float:
+    """What the fused scan reads straight ahead, where a 0.2 m high box stands 1.5 m off."""
+    stream: FusionStream[int] = FusionStream(config)
+    stream.add_camera_info(CAMERA)
+    depth = depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD])
+    stream.add_depth(NS - frame_age_ns, depth, NS, 'front_optical')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    return math.inf if out.fused is None else reading(out.fused, 0.0)
+
+
+def test_the_first_named_cameras_own_section_settings_hold_for_it():
+    """Issue 26.6: the first named camera's own min_obstacle_height, max_obstacle_height and
+    max_time_offset were ignored (the global ones held); a second camera's were not. The box
+    (0.2 m high) is an obstacle in the default slab, none above a slab bottom of 0.25 m, and
+    a frame 50 ms old pairs only within a window of more."""
+    assert front_box_reading(one_named_camera()) == pytest.approx(1.5, abs=0.02)
+    assert front_box_reading(one_named_camera(min_obstacle_height=0.25)) == math.inf
+    late = 50_000_000
+    assert front_box_reading(one_named_camera(), late) == pytest.approx(1.5, abs=0.02)
+    assert front_box_reading(one_named_camera(max_time_offset=0.02), late) == math.inf
+
+
+@pytest.mark.parametrize(
+    ('section', 'values'),
+    [
+        ({'min_obstacle_height': 0.4, 'max_obstacle_height': 0.1}, (0.4, 0.1)),
+        ({'min_obstacle_height': 0.6}, (0.6, 0.5)),  # above the global top
+    ],
+)
+def test_an_inverted_own_slab_is_refused(section, values):
+    """Issue 26.6: a camera's (or cloud's) own slab upside down was accepted."""
+    low, high = values
+    with pytest.raises(
+        ConfigError, match=rf'source front_depth: its slab bottom \({low}\) must be below its '
+        rf'top \({high}\)',
+    ):  # fmt: skip
+        one_named_camera(**section)
+    with pytest.raises(ConfigError, match=r'source points: its slab bottom \(0.3\)'):
+        cloud_config(points={'topic': '/points', 'min_height': 0.3, 'max_height': 0.2})

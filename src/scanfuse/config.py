@@ -345,6 +345,14 @@ class FusionConfig(BaseModel):
                 f'max_obstacle_height ({self.max_obstacle_height})'
             )
             raise ValueError(msg)
+        for name, low, high in _own_slabs(self):
+            if low >= high:
+                msg = (
+                    f'source {name}: its slab bottom ({low}) must be below its top ({high}) '
+                    '(its own values, or min_obstacle_height / max_obstacle_height where it '
+                    'sets none)'
+                )
+                raise ValueError(msg)
         side = memory_grid_side(self.memory_radius, self.memory_cell)
         if side * side > MAX_MEMORY_CELLS:
             msg = (
@@ -404,6 +412,28 @@ class FusionConfig(BaseModel):
         return self.from_dict({**current, **changes})
 
 
+def _own_slabs(config: FusionConfig) -> list[tuple[str, float, float]]:
+    """(name, bottom, top) of every camera's and cloud's slab: its own, or the global one."""
+    low, high = config.min_obstacle_height, config.max_obstacle_height
+    slabs = [
+        (
+            camera.name,
+            low if camera.min_obstacle_height is None else camera.min_obstacle_height,
+            high if camera.max_obstacle_height is None else camera.max_obstacle_height,
+        )
+        for camera in config.sources.cameras
+    ]
+    slabs += [
+        (
+            cloud.name,
+            low if cloud.min_height is None else cloud.min_height,
+            high if cloud.max_height is None else cloud.max_height,
+        )
+        for cloud in config.sources.clouds
+    ]
+    return slabs
+
+
 def _smallest_cell(radius: float) -> float:
     """The smallest memory_cell (to 0.1 mm, rounded up) whose grid fits `radius`."""
     cell = 2.0 * radius / (math.isqrt(MAX_MEMORY_CELLS) - 3)
@@ -428,6 +458,8 @@ def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
         first = cameras[0]
         primary['depth_topic'] = first.get('depth_topic')
         primary['camera_info_topic'] = first.get('camera_info_topic')
+        # Its own pairing window is the pairing window (its slab: `FusionStream.reconfigure`).
+        primary['max_time_offset'] = first.get('max_time_offset')
         for axis, name in (('x', 'camera_x'), ('y', 'camera_y'), ('z', 'camera_height')):
             primary[name] = first.get(axis, 0.0)
         for angle in ('roll', 'pitch', 'yaw'):

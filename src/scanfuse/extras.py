@@ -120,10 +120,19 @@ class ExtraSources:
             *self.cameras.values(),
             *self.clouds.values(),
         ]
-        self._state = {s.name: _Source(s.name, round(s.max_time_offset * 1e9)) for s in every}
+        self._state = {
+            s.name: _Source(
+                s.name,
+                round(
+                    (config.max_time_offset if s.max_time_offset is None else s.max_time_offset)
+                    * 1e9
+                ),
+            )
+            for s in every
+        }
         self._camera_models: dict[str, CameraModel] = {}
         self._pipelines = {
-            name: FusionPipeline(_camera_config(config, s)) for name, s in self.cameras.items()
+            name: FusionPipeline(camera_config(config, s)) for name, s in self.cameras.items()
         }
         self.counts = ExtraCounts()
         self.seen: list[SeenFrame] = []  # the other cameras' frames the last output used
@@ -289,7 +298,7 @@ class ExtraSources:
         return scan.with_ranges(scan.ranges, frame_id=output.frame_id, stamp_ns=output.stamp_ns)
 
 
-def _camera_config(config: FusionConfig, source: CameraSource) -> FusionConfig:
+def camera_config(config: FusionConfig, source: CameraSource) -> FusionConfig:
     """The fusion settings of one camera: its own slab where it sets one."""
     changes = {}
     if source.min_obstacle_height is not None:

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 import numpy as np
 
 from scanfuse.errors import InputError, ScanfuseError, TransformError
-from scanfuse.extras import ExtraSources
+from scanfuse.extras import ExtraSources, camera_config
 from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
@@ -257,7 +257,9 @@ class FusionStream(Generic[T]):
         Everything new is built before anything is changed: a configuration refused here
         (ScanfuseError) leaves the stream as it was.
         """
-        pipeline = FusionPipeline(config)
+        # The first camera's own section (its slab) holds for it, as another camera's does.
+        first = config.sources.cameras[0] if config.sources.cameras else None
+        pipeline = FusionPipeline(config if first is None else camera_config(config, first))
         parameters = Extrinsics.from_config(config)
         extras = ExtraSources(config)
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
@@ -716,8 +718,8 @@ class FusionStream(Generic[T]):
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
-        config = self.config
-        slab = (config.min_obstacle_height, config.max_obstacle_height)
+        own = self.pipeline.config  # the first camera's slab (`reconfigure`)
+        slab = (own.min_obstacle_height, own.max_obstacle_height)
         base_to_laser = self.base_to_laser(scan.frame_id)
         pose = self._corrected(scan, base.pose, base_to_laser)
         placement = Placement.of(pose, base_to_laser)
@@ -835,7 +837,10 @@ class FusionStream(Generic[T]):
             frame.depth,
             frame.camera,
             odom_to_optical,
-            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            slab=(
+                self.pipeline.config.min_obstacle_height,
+                self.pipeline.config.max_obstacle_height,
+            ),
             range_min=config.range_min,
             range_max=config.range_max,
             agreement=MEMORY_NEIGHBOUR_AGREEMENT,
