@@ -3,7 +3,11 @@ and poor errors are one clean line and exit 1, found before any work is done."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -113,3 +117,39 @@ def test_a_source_name_listed_twice_is_named(tmp_path, capsys, sources, where):
     err = ' '.join(capsys.readouterr().err.split())
     assert f"source name 'front' is listed twice ({where})" in err
     assert 'Field required' not in err
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """Whether process `pid` has a handler for SIGTERM (/proc's SigCgt mask)."""
+    for line in Path(f'/proc/{pid}/status').read_text(encoding='utf-8').splitlines():
+        if line.startswith('SigCgt:'):
+            return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    return False
+
+
+@pytest.mark.skipif(not Path('/proc/self/status').exists(), reason='needs /proc')
+@pytest.mark.parametrize('delay', [0.05, 0.15, 0.3])
+def test_sigterm_in_the_first_second_of_start_up_exits_143(tmp_path, delay):
+    """Issue 26.12: SIGTERM while `scanfuse` was still starting (importing numpy and its
+    kernels, about a second) killed it (-15) instead of exit code 143. The signal is sent
+    `delay` s after the start, or once the command catches it, at the latest 0.3 s in."""
+    command = Path(sys.executable).with_name('scanfuse')
+    if not command.exists():
+        pytest.skip(f'no {command}: install the package (make test)')
+    source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3))
+    child = subprocess.Popen(
+        [str(command), 'bag', str(source), str(tmp_path / 'out')],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    start = time.monotonic()
+    while time.monotonic() - start < 0.3 and not (
+        time.monotonic() - start >= delay and _catches_sigterm(child.pid)
+    ):
+        time.sleep(0.005)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 128 + signal.SIGTERM, err
+    assert 'Traceback' not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['in']
