@@ -8,6 +8,7 @@ import hashlib
 import math
 import re
 import sqlite3
+import tracemalloc
 from dataclasses import replace
 
 import numpy as np
@@ -16,10 +17,14 @@ import yaml
 from rosbags.highlevel import AnyReader
 
 from scanfuse.cli import main
+from scanfuse.config import FusionConfig
 from scanfuse.frames import StampedTransform
 from scanfuse.ros.messages import (
+    CAMERA_INFO,
     LASER_SCAN,
     TF_MESSAGE,
+    camera_to_cdr,
+    camera_to_msg,
     scan_from_msg,
     scan_to_cdr,
     serialize,
@@ -132,3 +137,34 @@ def test_a_db3_bag_with_text_data_or_a_negative_timestamp_is_one_clean_line(
     assert _digest(source) == before
     assert not (tmp_path / 'out').exists()
     assert not list(tmp_path.glob('.out.*'))
+
+
+def test_a_camera_info_describing_a_giant_image_is_malformed_before_any_table(tmp_path):
+    """Issue 26.2: a CameraInfo's width and height size the obstacle method's per-pixel
+    tables, built when it arrives (100 000 x 100 000: 80 GB asked). The node's adapter
+    counts it as malformed and allocates nothing for it; the scene's own camera still works."""
+    from scanfuse.ros.live import LiveFusion
+
+    scene = Scene(duration=0.3)
+    store = typestore()
+    live = LiveFusion(FusionConfig(use_tf=False), store=store)
+    message = camera_to_msg(scene.camera, stamp_ns=scene.start_ns, store=store)
+    message.width = message.height = 100_000
+    live.on_scan(scene_scan_cdr(scene, store), 0.0)
+    tracemalloc.start()
+    try:
+        live.on_camera_info(serialize(message, CAMERA_INFO, store), 0.01)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20
+    assert live.stream.camera is None
+    assert live.malformed == {'camera info': 1}
+    live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=scene.start_ns, store=store), 0.02)
+    assert live.stream.camera is not None
+    assert (live.stream.camera.width, live.stream.camera.height) == (160, 120)
+
+
+def scene_scan_cdr(scene: Scene, store) -> bytes:
+    """The scene's first LiDAR scan as the node receives it."""
+    return next(raw for topic, _, _, raw in scene_messages(scene) if topic == '/scan')
