@@ -168,3 +168,24 @@ def test_a_camera_info_describing_a_giant_image_is_malformed_before_any_table(tm
 def scene_scan_cdr(scene: Scene, store) -> bytes:
     """The scene's first LiDAR scan as the node receives it."""
     return next(raw for topic, _, _, raw in scene_messages(scene) if topic == '/scan')
+
+
+def test_the_nodes_fallback_pass_through_publishes_a_zero_as_nan():
+    """Issue 26.5: when the node meets an unexpected error it publishes the LiDAR scan as it
+    came (`LiveFusion.passthrough`); that too keeps the README's promise: a Hokuyo's 0.0 is
+    NaN, and a scan without one goes out byte for byte."""
+    from scanfuse.ros.live import LiveFusion
+
+    store = typestore()
+    live = LiveFusion(FusionConfig(), store=store)
+    raw = scene_scan_cdr(Scene(duration=0.3), store)
+    assert live.passthrough(raw) == raw
+    scan = scan_from_msg(store.deserialize_cdr(raw, LASER_SCAN))
+    ranges = scan.ranges.copy()
+    ranges[::7] = 0.0
+    hokuyo = scan_to_cdr(replace(scan, range_min=0.0, ranges=ranges), store)
+    published = scan_from_msg(store.deserialize_cdr(live.passthrough(hokuyo), LASER_SCAN))
+    assert np.isnan(published.ranges[::7]).all()
+    finite = np.isfinite(published.ranges)
+    assert np.all(published.ranges[finite] > 0.0)
+    np.testing.assert_array_equal(published.ranges[finite], ranges[finite])

@@ -31,6 +31,7 @@ from scanfuse.ros.messages import (
     transforms_from_cdr,
     typestore,
 )
+from scanfuse.scan import normalized_ranges
 from scanfuse.stream import FusionStream, Passed, StreamOutput
 
 if TYPE_CHECKING:
@@ -411,6 +412,16 @@ class LiveFusion:
         """The fused scan without the memory; the LiDAR's own bytes when nothing was fused."""
         scan = result.instant if result.instant is not None else result.fused
         return result.token if scan is None else self._cdr(scan)
+
+    def passthrough(self, raw: RawMessage) -> bytes:
+        """A LiDAR scan's bytes to publish unchanged: its own when it holds no driver's
+        error value (a Hokuyo's 0.0), else re-encoded with those as NaN (MessageError: it
+        cannot be decoded)."""
+        scan = scan_from_cdr(raw, self.store)
+        ranges = normalized_ranges(scan)
+        if np.array_equal(ranges, scan.ranges, equal_nan=True):
+            return bytes(raw)
+        return scan_to_cdr(scan.with_ranges(ranges), self.store)
 
     def _cdr(self, scan: Scan | None) -> bytes | None:
         return None if scan is None else scan_to_cdr(scan, self.store)

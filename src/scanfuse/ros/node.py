@@ -412,8 +412,14 @@ class ScanfuseNode:
             )
             if self.live.malformed[f'internal ({kind})'] == 1:
                 logger.exception('unexpected error handling a %s; the LiDAR passes through', kind)
-            # The LiDAR's own scan is always safe to publish.
-            return [] if lidar_raw is None else [_raw_output(lidar_raw)]
+            # The LiDAR's scan is always safe to publish (its error values as NaN).
+            return [] if lidar_raw is None else self._passed_through(lidar_raw)
+
+    def _passed_through(self, raw: bytes) -> list[Output]:
+        try:
+            return [_raw_output(self.live.passthrough(raw))]
+        except Exception:  # noqa: BLE001 - undecodable: nothing is safe to publish
+            return []
 
     def _publish(self, outputs: list[Output] | None) -> None:
         topics = self.topics
