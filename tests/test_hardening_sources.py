@@ -351,3 +351,32 @@ def test_an_inverted_own_slab_is_refused(section, values):
         one_named_camera(**section)
     with pytest.raises(ConfigError, match=r'source points: its slab bottom \(0.3\)'):
         cloud_config(points={'topic': '/points', 'min_height': 0.3, 'max_height': 0.2})
+
+
+def test_a_parameter_change_mid_revolution_keeps_the_fragments_and_the_reading_count():
+    """Issue 26.1 (every run-time change applies): a change of any parameter made a new
+    fragment assembler, so the revolution begun was lost and the learned reading count
+    forgotten (slam_toolbox refuses a scan whose count changes)."""
+    config = FusionConfig(memory=False, assemble_fragments=True)
+    stream: FusionStream[int] = FusionStream(config)
+    out = []
+    for turn in range(3):
+        for piece in range(3):
+            if (turn, piece) == (1, 1):
+                stream.reconfigure(config.with_changes(min_obstacle_height=0.1))
+            if (turn, piece) == (2, 1):
+                stream.reconfigure(config.with_changes(assemble_fragments=False))
+                break
+            whole = hokuyo_scan(stamp=NS * (turn + 1) + piece * 1000)
+            start = piece * 180
+            fragment = replace(
+                whole,
+                angle_min=whole.angle_min + start * whole.angle_increment,
+                angle_max=whole.angle_min + (start + 179) * whole.angle_increment,
+                ranges=whole.ranges[start : start + 180],
+            )
+            out += stream.add_scan(fragment, 10 * turn + piece, NS * (turn + 1) + piece * 1000)
+    out += stream.finish()
+    # The last revolution's first fragment, begun before assembly stopped, is not lost.
+    assert [o.token for o in out] == [2, 12, 20]
+    assert [len(o.lidar) for o in out] == [540, 540, 540]

@@ -247,6 +247,7 @@ class FusionStream(Generic[T]):
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
+        self.assembler: FragmentAssembler[T] | None = None
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
@@ -276,9 +277,7 @@ class FusionStream(Generic[T]):
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
         self.extras = extras
-        self.assembler: FragmentAssembler[T] | None = (
-            FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
-        )
+        self._reassemble(config)
         if not config.memory:
             self.memory = None
             self.drift.reset()
@@ -291,6 +290,26 @@ class FusionStream(Generic[T]):
             self._memory_segment = None
         else:
             self.memory.settings = settings  # what is remembered stays
+
+    def _reassemble(self, config: FusionConfig) -> None:
+        """Keep the fragment assembler (and the revolution it learned: the reading count
+        must not change) while its settings hold; a revolution begun when they change or
+        assembly stops joins the waiting scans, never lost."""
+        old = self.assembler
+        keep = (
+            config.assemble_fragments
+            and old is not None
+            and old.timeout_ns == round(config.fragment_timeout * 1e9)
+        )
+        if keep:
+            return
+        if old is not None:
+            arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
+            for revolution, token in old.flush():
+                self._admit(revolution, token, arrived or 0, assembled=True)
+        self.assembler = (
+            FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
+        )
 
     # ------------------------------------------------------------ inputs
 
