@@ -29,5 +29,13 @@ def main() -> int:
     return cli_main()
 
 
+def node_entry() -> int:
+    """`ros2 run scanfuse scanfuse_node ARGS` (the colcon package's executable), the same way."""
+    signal.signal(signal.SIGTERM, _exit_terminated)
+    from scanfuse.cli import node_entry as cli_node_entry  # noqa: PLC0415 - as in `main`
+
+    return cli_node_entry()
+
+
 if __name__ == '__main__':
     sys.exit(main())
