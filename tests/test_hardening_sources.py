@@ -20,6 +20,7 @@ from scanfuse.stream import FusionStream
 from tests.support.render import depth_image, square_room_ranges
 from tests.test_sources import (
     BOX_AHEAD,
+    BOX_BEHIND,
     CAMERA,
     HALF,
     NS,
@@ -27,6 +28,7 @@ from tests.test_sources import (
     base_lidar,
     camera_pose,
     cloud_config,
+    front_and_rear_cameras,
     lidar_scan,
     reading,
     two_lidars,
@@ -380,3 +382,24 @@ def test_a_parameter_change_mid_revolution_keeps_the_fragments_and_the_reading_c
     # The last revolution's first fragment, begun before assembly stopped, is not lost.
     assert [o.token for o in out] == [2, 12, 20]
     assert [len(o.lidar) for o in out] == [540, 540, 540]
+
+
+def test_the_first_cameras_own_window_is_its_own_not_the_other_sources_default():
+    """Issue 26.6: the first camera's max_time_offset holds for it alone; a second camera
+    without one keeps the global window (0.1 s), so its frame 50 ms old still counts."""
+    front = {'depth_topic': '/front/depth', 'camera_info_topic': '/front/info', 'z': 0.4}
+    config = front_and_rear_cameras(front_depth={**front, 'pitch': PITCH, 'max_time_offset': 0.02})
+    stream: FusionStream[int] = FusionStream(config)
+    rear_camera = replace(CAMERA, frame_id='rear_optical')
+    stream.add_camera_info(CAMERA)
+    stream.add_camera_info(rear_camera, source='rear_depth')
+    late = 50_000_000
+    front_depth = depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD])
+    stream.add_depth(NS - late, front_depth, NS, 'front_optical')
+    rear_depth = depth_image(rear_camera, camera_pose(math.pi), [BOX_BEHIND])
+    stream.add_depth(NS - late, rear_depth, NS, 'rear_optical', source='rear_depth')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.passed is not None  # the front frame is beyond the front camera's 20 ms
+    assert out.fused is not None
+    assert reading(out.fused, math.pi) == pytest.approx(1.5, abs=0.02)  # the rear's 100 ms
+    assert reading(out.fused, 0.0) == math.inf

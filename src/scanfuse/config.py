@@ -458,8 +458,6 @@ def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
         first = cameras[0]
         primary['depth_topic'] = first.get('depth_topic')
         primary['camera_info_topic'] = first.get('camera_info_topic')
-        # Its own pairing window is the pairing window (its slab: `FusionStream.reconfigure`).
-        primary['max_time_offset'] = first.get('max_time_offset')
         for axis, name in (('x', 'camera_x'), ('y', 'camera_y'), ('z', 'camera_height')):
             primary[name] = first.get(axis, 0.0)
         for angle in ('roll', 'pitch', 'yaw'):

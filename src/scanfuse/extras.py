@@ -299,10 +299,19 @@ class ExtraSources:
 
 
 def camera_config(config: FusionConfig, source: CameraSource) -> FusionConfig:
-    """The fusion settings of one camera: its own slab where it sets one."""
+    """The fusion settings of one camera: its own slab and pairing window where it sets them."""
     changes = {}
+    if source.max_time_offset is not None:
+        changes['max_time_offset'] = source.max_time_offset
     if source.min_obstacle_height is not None:
         changes['min_obstacle_height'] = source.min_obstacle_height
     if source.max_obstacle_height is not None:
         changes['max_obstacle_height'] = source.max_obstacle_height
     return config.with_changes(**changes) if changes else config
+
+
+def primary_camera_config(config: FusionConfig) -> FusionConfig:
+    """The fusion settings of the camera paired with the first LiDAR: the first named one's
+    own (`camera_config`), or `config` itself when no camera is named."""
+    cameras = config.sources.cameras
+    return camera_config(config, cameras[0]) if cameras else config

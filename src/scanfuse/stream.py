@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 import numpy as np
 
 from scanfuse.errors import InputError, ScanfuseError, TransformError
-from scanfuse.extras import ExtraSources, camera_config
+from scanfuse.extras import ExtraSources, primary_camera_config
 from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
@@ -258,9 +258,9 @@ class FusionStream(Generic[T]):
         Everything new is built before anything is changed: a configuration refused here
         (ScanfuseError) leaves the stream as it was.
         """
-        # The first camera's own section (its slab) holds for it, as another camera's does.
-        first = config.sources.cameras[0] if config.sources.cameras else None
-        pipeline = FusionPipeline(config if first is None else camera_config(config, first))
+        # The first camera's own section (its slab and pairing window) holds for it, as
+        # another camera's does.
+        pipeline = FusionPipeline(primary_camera_config(config))
         parameters = Extrinsics.from_config(config)
         extras = ExtraSources(config)
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
@@ -271,7 +271,7 @@ class FusionStream(Generic[T]):
         self.config = config
         self.pipeline = pipeline
         self._parameters = parameters
-        self._max_offset_ns = seconds_to_ns(config.max_time_offset)
+        self._max_offset_ns = seconds_to_ns(pipeline.config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)

@@ -48,6 +48,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
+from scanfuse.extras import primary_camera_config
 from scanfuse.frames import frame_name
 from scanfuse.progress import NullProgress, Progress
 from scanfuse.ros.messages import (
@@ -603,8 +604,9 @@ class _BagJob:
         self.first_camera: CameraModel | None = None
         # Bags are read in log-time order: a scan waits for the first frame stamped after it,
         # or until no frame logged up to REORDER_S late can still be near enough.
+        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
         self.stream: FusionStream[_Lidar] = FusionStream(
-            config, pair_wait=config.max_time_offset + REORDER_S, release_when_silent=False
+            config, pair_wait=pair_wait, release_when_silent=False
         )
         self.scan_frame = ''
         self.depth_frame = ''
