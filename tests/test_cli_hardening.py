@@ -128,11 +128,12 @@ def _catches_sigterm(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path('/proc/self/status').exists(), reason='needs /proc')
-@pytest.mark.parametrize('delay', [0.05, 0.15, 0.3])
+@pytest.mark.parametrize('delay', [0.05, 0.2, 0.4])
 def test_sigterm_in_the_first_second_of_start_up_exits_143(tmp_path, delay):
     """Issue 26.12: SIGTERM while `scanfuse` was still starting (importing numpy and its
     kernels, about a second) killed it (-15) instead of exit code 143. The signal is sent
-    `delay` s after the start, or once the command catches it, at the latest 0.3 s in."""
+    `delay` s after the start, or once the command catches it, at the latest 0.5 s in (the
+    import alone took 0.7 s)."""
     command = Path(sys.executable).with_name('scanfuse')
     if not command.exists():
         pytest.skip(f'no {command}: install the package (make test)')
@@ -144,7 +145,7 @@ def test_sigterm_in_the_first_second_of_start_up_exits_143(tmp_path, delay):
         text=True,
     )
     start = time.monotonic()
-    while time.monotonic() - start < 0.3 and not (
+    while time.monotonic() - start < 0.5 and not (
         time.monotonic() - start >= delay and _catches_sigterm(child.pid)
     ):
         time.sleep(0.005)
