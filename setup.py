@@ -19,7 +19,7 @@ from setuptools.config.pyprojecttoml import apply_configuration
 from setuptools.dist import Distribution
 
 PACKAGE = 'scanfuse'
-NODE_EXECUTABLE = 'scanfuse_node = scanfuse.cli:node_entry'
+NODE_EXECUTABLE = 'scanfuse_node = scanfuse.__main__:node_entry'
 
 
 def ros_data_files() -> list[tuple[str, list[str]]]:

@@ -15,6 +15,11 @@ odometry, TF, clock ticks): apart from a ScanfuseError for an input refused on e
 (as the adapter's decoding would refuse it) nothing raises, every scan leaves exactly
 once and in arrival order, and each fused scan has the properties above.
 
+A third fuzz (issue 26) adds the surfaces since: a second LiDAR (its 0.0 no returns), a
+point cloud ((0, 0, 0) no returns, wrong shapes), fragments, full_circle, the memory with
+odometry and scan matching, and parameter changes while running. Every scan published
+(fused, passed through, without the memory, the memory alone) keeps its own limits.
+
 The examples run in a child interpreter: a segfault in the compiled kernel fails this
 test with the child's output instead of killing pytest. Derandomized, so every run
 (and CI) tries the same examples; SCANFUSE_FUZZ_EXAMPLES and SCANFUSE_FUZZ_SEED explore
@@ -50,6 +55,7 @@ from tests.support import REPOSITORY
 REPO = REPOSITORY
 EXAMPLES = int(os.environ.get('SCANFUSE_FUZZ_EXAMPLES', '1000'))
 STREAM_EXAMPLES = max(EXAMPLES // 5, 1)
+SOURCES_EXAMPLES = max(EXAMPLES // 5, 1)
 SEED = int(os.environ.get('SCANFUSE_FUZZ_SEED', '0'))
 # A file that holds the case being fused (pickled), to replay the one that crashed the child.
 TRACE = os.environ.get('SCANFUSE_FUZZ_TRACE')
@@ -385,13 +391,203 @@ def fuzz_stream(
             OUTCOMES[f'stream: passed through, {output.passed.value}'] += 1
 
 
+# Issue 26: the surfaces added since issue 11. A second LiDAR behind (its 0.0 no return
+# among its readings), a point cloud (its (0, 0, 0) no returns, wrong shapes), fragments,
+# full_circle, the memory with odometry and scan matching, and parameter changes while
+# running.
+SOURCES = {
+    'lidars': ['front', 'rear'],
+    'front': {'topic': '/scan', 'z': 0.3},
+    'rear': {'topic': '/rear/scan', 'x': -0.3, 'z': 0.3, 'yaw': math.pi},
+    'clouds': ['points'],
+    'points': {'topic': '/points', 'x': 0.2, 'z': 0.5},
+}
+RECONFIGURATIONS = [
+    {'memory_radius': 1.0},
+    {'memory_radius': 18.0},
+    {'memory_radius': 20.0},  # beyond the table: refused
+    {'memory_cell': 0.005},  # with memory_radius 2 and more: refused
+    {'memory_cell': 0.05},
+    {'full_circle': True},
+    {'full_circle': False},
+    {'assemble_fragments': True},
+    {'assemble_fragments': False},
+    {'fragment_timeout': 0.05},
+    {'min_obstacle_height': 0.1},
+    {'memory': False},
+    {'memory': True},
+    {'memory_scan_matching': False},
+    {'max_time_offset': 0.02},
+]
+
+
+@st.composite
+def cloud_points(draw: st.DrawFn) -> np.ndarray:
+    """N x 3 points, salted with (0, 0, 0) no returns and FLOOD values; rarely a wrong shape."""
+    count = draw(st.integers(0, 60))
+    shape = _rarely(draw, st.just((count, 3)), [(count, 2), (count, 4), (count * 3,)])
+    points = draw(
+        hnp.arrays(np.float64, shape, elements=_values(draw, st.floats(-3.0, 3.0)))  # type: ignore[arg-type]
+    )
+    if points.ndim == 2 and points.shape[1] == 3 and count and draw(st.booleans()):
+        points[: count // 2] = 0.0
+    return points
+
+
+@st.composite
+def source_events(draw: st.DrawFn) -> list[tuple[object, ...]]:
+    """`stream_events`, and scans of the rear LiDAR, clouds, fragments, smooth odometry and
+    parameter changes."""
+    events = draw(stream_events())
+    for _ in range(draw(st.integers(1, 10))):
+        stamp = STAMP_0 + 50 * MS * draw(st.integers(0, 5))
+        kind = draw(st.sampled_from(['rear', 'cloud', 'fragments', 'odometry', 'change']))
+        if kind == 'rear':
+            scan = draw(lidar_scans())
+            ranges = np.array(scan['ranges'], dtype=np.float32)
+            ranges[::3] = 0.0
+            events.append(('rear', stamp, {**scan, 'ranges': ranges, 'range_min': 0.0}))
+        elif kind == 'cloud':
+            events.append(('cloud', stamp, draw(cloud_points())))
+        elif kind == 'fragments':
+            events.append(('fragments', stamp, draw(lidar_scans()), draw(st.integers(1, 4))))
+        elif kind == 'odometry':
+            step = draw(st.integers(0, 5))
+            events.append(('odometry', stamp, 0.05 * step, 0.0, 0.02 * step))
+        else:
+            events.append(('change', draw(st.sampled_from(RECONFIGURATIONS))))
+    order = draw(st.permutations(range(1, len(events))))
+    return [events[0], *(events[i] for i in order)]
+
+
+def _fragments(scan: Scan, pieces: int) -> list[Scan]:
+    """`scan` cut into `pieces` consecutive fragments (the last takes what is left)."""
+    size = max(len(scan) // pieces, 1)
+    out = []
+    for start in range(0, len(scan), size):
+        ranges = scan.ranges[start : start + size]
+        angle_min = scan.angle_min + start * scan.angle_increment
+        out.append(
+            Scan(
+                angle_min=angle_min,
+                angle_max=angle_min + scan.angle_increment * (len(ranges) - 1),
+                angle_increment=scan.angle_increment,
+                range_min=scan.range_min,
+                range_max=scan.range_max,
+                ranges=ranges,
+                frame_id=scan.frame_id,
+                stamp_ns=scan.stamp_ns + start * 10_000,
+            )
+        )
+    return out
+
+
+def check_published(scan: Scan | None, what: str) -> None:
+    """REP-117 and the README's promise: every finite reading published lies inside the
+    scan's own limits and is positive (a driver's 0.0 is NaN)."""
+    if scan is None:
+        return
+    values = scan.ranges[np.isfinite(scan.ranges)]
+    inside = (values >= scan.range_min) & (values <= scan.range_max) & (values > 0.0)
+    assert inside.all(), f'{what}: finite values outside [{scan.range_min}, {scan.range_max}]'
+
+
+@seed(SEED)
+@settings(
+    max_examples=SOURCES_EXAMPLES,
+    deadline=None,
+    database=None,
+    derandomize=SEED == 0,
+    suppress_health_check=list(HealthCheck),
+)
+@given(
+    configs(),
+    st.fixed_dictionaries(
+        {
+            'full_circle': st.booleans(),
+            'assemble_fragments': st.booleans(),
+            'memory_scan_matching': st.booleans(),
+            'use_tf': st.booleans(),
+        }
+    ),
+    source_events(),
+)
+def fuzz_sources(
+    values: dict[str, object], flags: dict[str, object], events: list[tuple[object, ...]]
+) -> None:
+    """Runs in the child: named sources, clouds, fragments, memory and run-time changes end
+    in results or ScanfuseErrors; scans leave once, in order; every scan published (fused,
+    passed through, without the memory, the memory alone) keeps its limits, and a fused
+    one is never farther than a real reading of the LiDAR it was built on."""
+    try:
+        config = FusionConfig.from_dict({**values, **flags, **SOURCES})
+    except ScanfuseError:
+        OUTCOMES['sources: config refused'] += 1
+        return
+    stream: FusionStream[int] = FusionStream(config)
+    outputs = []
+    sent: dict[int, Scan] = {}
+    now = STAMP_0
+    for event in events:
+        now += 20 * MS
+        kind = event[0]
+        try:
+            if kind == 'camera':
+                stream.add_camera_info(CameraModel(**event[1]))  # type: ignore[arg-type]
+            elif kind == 'depth':
+                outputs += stream.add_depth(event[1], event[2], now, 'camera_optical')  # type: ignore[arg-type]
+            elif kind in ('scan', 'fragments'):
+                scan = Scan(**{**event[2], 'stamp_ns': event[1]})  # type: ignore[dict-item]
+                pieces = [scan] if kind == 'scan' else _fragments(scan, event[3])  # type: ignore[arg-type]
+                for piece in pieces:
+                    token = len(sent)
+                    outputs += stream.add_scan(piece, token, now)
+                    sent[token] = piece
+            elif kind == 'rear':
+                rear = Scan(**{**event[2], 'stamp_ns': event[1], 'frame_id': 'rear'})  # type: ignore[dict-item]
+                outputs += stream.add_scan(rear, -1, now, source='rear')
+            elif kind == 'cloud':
+                outputs += stream.add_cloud(event[1], event[2], now, 'points', 'points')  # type: ignore[arg-type]
+            elif kind == 'odometry':
+                stream.add_odometry(event[1], PlanarPose(*event[2:]))  # type: ignore[arg-type]
+            elif kind == 'tf':
+                _, stamp, parent, child, rotation, translation, static = event
+                moved = StampedTransform(parent, child, translation, rotation, stamp)  # type: ignore[arg-type]
+                stream.add_transforms([moved], static=static)  # type: ignore[arg-type]
+            elif kind == 'change':
+                stream.reconfigure(stream.config.with_changes(**event[1]))  # type: ignore[arg-type]
+            else:
+                outputs += stream.tick(now)
+        except ScanfuseError:
+            continue  # an input or a change refused on entry
+    outputs += stream.finish()
+    tokens = [output.token for output in outputs]
+    assert tokens == sorted(set(tokens)), 'lost, repeated or reordered'
+    assert set(tokens) <= set(sent)
+    for output in outputs:
+        published = sent[output.token] if output.fused is None else output.fused
+        check_published(published, 'published')
+        check_published(output.instant, 'instant')
+        check_published(output.memory_scan, 'memory')
+        if output.fused is not None:
+            check_merge_properties(output.lidar, output.fused)
+    OUTCOMES['sources: scans fused'] += sum(o.passed is None for o in outputs)
+    OUTCOMES['sources: scans published'] += len(outputs)
+
+
 def run_child() -> None:
     """The child's entry point: fuzz, then print the outcomes, 'fused N' last."""
     fuzz_stream()
+    fuzz_sources()
     fuzz_fuse()
     for outcome, count in OUTCOMES.most_common():
         print(f'{count:5d}  {outcome}')
-    print('fused', OUTCOMES['fused'], OUTCOMES['stream: scans fused'])
+    print(
+        'fused',
+        OUTCOMES['fused'],
+        OUTCOMES['stream: scans fused'],
+        OUTCOMES['sources: scans published'],
+    )
 
 
 def test_fuse_gives_a_result_or_a_scanfuse_error_and_keeps_the_merge_properties():
@@ -414,3 +610,5 @@ def test_fuse_gives_a_result_or_a_scanfuse_error_and_keeps_the_merge_properties(
     # The stream's sequences are hostile by design (odometry jumps, foreign frames, cameras
     # changing size): one in twenty with a fused scan is enough to check the properties on.
     assert int(last[2]) >= STREAM_EXAMPLES // 20, report
+    # Named sources, clouds, fragments, memory, run-time changes (issue 26): scans published.
+    assert int(last[3]) >= SOURCES_EXAMPLES // 2, report

@@ -27,6 +27,9 @@ MILLIMETRE = 0.001
 # A CameraInfo past it (fx = 1e-300, cx = 1e30) is corrupt, and its rays would overflow
 # the float32 ray tables to Inf.
 MAX_RAY_SLOPE = 1.0e4
+# The largest image a CameraInfo may describe: 16384 a side, 2^26 pixels (8K is 2^25).
+MAX_IMAGE_SIDE = 16_384
+MAX_PIXELS = 1 << 26
 
 
 def decode_depth(
@@ -118,6 +121,14 @@ class CameraModel:
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             msg = f'camera size must be positive, got {self.width}x{self.height}'
+            raise InputError(msg)
+        if max(self.width, self.height) > MAX_IMAGE_SIDE or self.width * self.height > MAX_PIXELS:
+            # Tables of one value per pixel are built from these numbers alone, before any
+            # image arrives: 100 000 x 100 000 would ask for 80 GB.
+            msg = (
+                f'camera size {self.width}x{self.height} is beyond any depth camera (at most '
+                f'{MAX_IMAGE_SIDE} a side and {MAX_PIXELS} pixels); publish the real image size'
+            )
             raise InputError(msg)
         for name in ('fx', 'fy'):
             value = getattr(self, name)

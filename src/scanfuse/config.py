@@ -25,6 +25,9 @@ from scanfuse.sources import (
 )
 
 NODE_NAME = 'scanfuse'
+# What a parameter file may be (`read_ros_params`): the largest example is 4 KiB.
+MAX_PARAMS_BYTES = 1 << 20
+MAX_PARAMS_DEPTH = 32
 # Parameters of the live node alone (ros.params.NodeSettings), which the one parameter file
 # may hold beside the fusion's: the bag processor and the simulator leave them out.
 NODE_ONLY = frozenset({'pair_wait', 'lidar_timeout'})
@@ -37,6 +40,15 @@ MAX_RANGE = 1000.0  # metres, depth camera range limits
 MAX_TIME_OFFSET = 10.0  # seconds: 10 s between a scan and an image is no longer one moment
 MAX_CAMERA_TIMEOUT = 60.0  # seconds
 MAX_OBSTACLE_MIN_POINTS = 64  # per slot and frame the kernel keeps this many nearest points
+# Cells of the obstacle memory's rolling grid at most: 2^21 (about 60 MB of arrays). The grid
+# has `memory_grid_side` cells a side; MAX_MEMORY_RADIUS fits with the default memory_cell.
+MAX_MEMORY_CELLS = 1 << 21
+MAX_MEMORY_RADIUS = 18.0  # metres
+
+
+def memory_grid_side(radius: float, cell: float) -> int:
+    """Cells along one side of the memory's rolling grid (covers the radius with a margin)."""
+    return math.ceil(2.0 * radius / cell) + 2
 
 
 def _metres(default: float, description: str, *, bound: float = MAX_MOUNTING_OFFSET) -> Any:
@@ -296,7 +308,13 @@ class FusionConfig(BaseModel):
         ),
     )
     memory_radius: float = Field(
-        2.0, gt=0.0, le=20.0, description='metres around the robot obstacles are remembered'
+        2.0,
+        gt=0.0,
+        le=MAX_MEMORY_RADIUS,
+        description=(
+            'metres around the robot obstacles are remembered; at most about 723 memory_cell '
+            '(the grid holds 2^21 cells)'
+        ),
     )
     memory_time: float = Field(
         20.0, gt=0.0, le=3600.0, description='seconds an obstacle is remembered unless re-seen'
@@ -369,6 +387,22 @@ class FusionConfig(BaseModel):
                 f'max_obstacle_height ({self.max_obstacle_height})'
             )
             raise ValueError(msg)
+        for name, low, high in _own_slabs(self):
+            if low >= high:
+                msg = (
+                    f'source {name}: its slab bottom ({low}) must be below its top ({high}) '
+                    '(its own values, or min_obstacle_height / max_obstacle_height where it '
+                    'sets none)'
+                )
+                raise ValueError(msg)
+        side = memory_grid_side(self.memory_radius, self.memory_cell)
+        if side * side > MAX_MEMORY_CELLS:
+            msg = (
+                f'memory_radius {self.memory_radius} m with memory_cell {self.memory_cell} m needs '
+                f'{side * side} memory cells (at most {MAX_MEMORY_CELLS}): make memory_cell at '
+                f'least {_smallest_cell(self.memory_radius):.4f} m or memory_radius smaller'
+            )
+            raise ValueError(msg)
         if self.d2l_compat and self.scan_row is not None:
             msg = (
                 'd2l_compat reproduces depthimage_to_laserscan, whose band is always centred '
@@ -420,6 +454,34 @@ class FusionConfig(BaseModel):
         return self.from_dict({**current, **changes})
 
 
+def _own_slabs(config: FusionConfig) -> list[tuple[str, float, float]]:
+    """(name, bottom, top) of every camera's and cloud's slab: its own, or the global one."""
+    low, high = config.min_obstacle_height, config.max_obstacle_height
+    slabs = [
+        (
+            camera.name,
+            low if camera.min_obstacle_height is None else camera.min_obstacle_height,
+            high if camera.max_obstacle_height is None else camera.max_obstacle_height,
+        )
+        for camera in config.sources.cameras
+    ]
+    slabs += [
+        (
+            cloud.name,
+            low if cloud.min_height is None else cloud.min_height,
+            high if cloud.max_height is None else cloud.max_height,
+        )
+        for cloud in config.sources.clouds
+    ]
+    return slabs
+
+
+def _smallest_cell(radius: float) -> float:
+    """The smallest memory_cell (to 0.1 mm, rounded up) whose grid fits `radius`."""
+    cell = 2.0 * radius / (math.isqrt(MAX_MEMORY_CELLS) - 3)
+    return math.ceil(cell * 1e4) / 1e4
+
+
 def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
     """The one-source parameters the first named LiDAR and camera stand for."""
     primary: dict[str, Any] = {}
@@ -446,13 +508,33 @@ def _primary_from_sources(named: dict[str, Any]) -> dict[str, Any]:
 
 
 def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """The `ros__parameters` of `node_name` in a ROS 2 parameter file."""
+    """The `ros__parameters` of `node_name` in a ROS 2 parameter file.
+
+    At most MAX_PARAMS_BYTES are read and MAX_PARAMS_DEPTH levels nested; YAML aliases are
+    refused, as ROS 2's own parameter parser refuses them (one alias can stand for gigabytes:
+    the "billion laughs").
+    """
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+        with path.open('rb') as file:
+            data = file.read(MAX_PARAMS_BYTES + 1)
     except OSError as err:
         msg = f'cannot read parameter file {path}: {err.strerror}'
         raise ConfigError(msg) from err
+    if len(data) > MAX_PARAMS_BYTES:
+        msg = (
+            f'parameter file {path} is larger than {MAX_PARAMS_BYTES // 1024} KiB; '
+            'is it a parameter file?'
+        )
+        raise ConfigError(msg)
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as err:
+        msg = f'parameter file {path} is not UTF-8 text (byte {err.start}): {err.reason}'
+        raise ConfigError(msg) from err
+    try:
+        _check_yaml_shape(path, text)
+        document = yaml.safe_load(text)
     except yaml.YAMLError as err:
         msg = f'parameter file {path} is not valid YAML: {err}'
         raise ConfigError(msg) from err
@@ -471,3 +553,27 @@ def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, A
         f'(found: {found}); see examples/scanfuse.yaml'
     )
     raise ConfigError(msg)
+
+
+def _check_yaml_shape(path: Path, text: str) -> None:
+    """Refuse aliases and nesting deeper than MAX_PARAMS_DEPTH, from the event stream (which
+    needs no recursion, unlike the loader that would meet them)."""
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        line = event.start_mark.line + 1 if event.start_mark is not None else '?'
+        if isinstance(event, yaml.AliasEvent):
+            msg = (
+                f'parameter file {path} uses a YAML alias (line {line}); '
+                "ROS 2's parameter parser refuses them too: write the values out"
+            )
+            raise ConfigError(msg)
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_PARAMS_DEPTH:
+                msg = (
+                    f'parameter file {path} nests more than {MAX_PARAMS_DEPTH} levels deep '
+                    f'(line {line}); is it a parameter file?'
+                )
+                raise ConfigError(msg)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1

@@ -28,6 +28,7 @@ from scanfuse.convert.cloud import lidar_points, points_scan
 from scanfuse.errors import ScanfuseError
 from scanfuse.frames import frame_name
 from scanfuse.pipeline import FusionPipeline
+from scanfuse.scan import normalized_ranges
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
 if TYPE_CHECKING:
@@ -99,6 +100,7 @@ class ExtraCounts:
     used: dict[str, int] = field(default_factory=dict)
     missing: dict[str, int] = field(default_factory=dict)
     no_mounting: dict[str, int] = field(default_factory=dict)
+    no_return: dict[str, int] = field(default_factory=dict)  # cloud points at (0, 0, 0)
 
     def note(self, table: dict[str, int], name: str) -> None:
         table[name] = table.get(name, 0) + 1
@@ -118,10 +120,19 @@ class ExtraSources:
             *self.cameras.values(),
             *self.clouds.values(),
         ]
-        self._state = {s.name: _Source(s.name, round(s.max_time_offset * 1e9)) for s in every}
+        self._state = {
+            s.name: _Source(
+                s.name,
+                round(
+                    (config.max_time_offset if s.max_time_offset is None else s.max_time_offset)
+                    * 1e9
+                ),
+            )
+            for s in every
+        }
         self._camera_models: dict[str, CameraModel] = {}
         self._pipelines = {
-            name: FusionPipeline(_camera_config(config, s)) for name, s in self.cameras.items()
+            name: FusionPipeline(camera_config(config, s)) for name, s in self.cameras.items()
         }
         self.counts = ExtraCounts()
         self.seen: list[SeenFrame] = []  # the other cameras' frames the last output used
@@ -136,6 +147,9 @@ class ExtraSources:
     # ------------------------------------------------------------ inputs
 
     def add_scan(self, name: str, scan: Scan) -> None:
+        # A driver's error values (a Hokuyo's 0.0 "no return") are no readings: NaN, as the
+        # first LiDAR's are (`normalized_ranges`), not points at the sensor's own origin.
+        scan = scan.with_ranges(normalized_ranges(scan))
         self._state[name].messages.append(_Message(scan.stamp_ns, scan.frame_id, scan))
 
     def add_camera_info(self, name: str, camera: CameraModel) -> None:
@@ -155,6 +169,13 @@ class ExtraSources:
     def add_cloud(
         self, name: str, stamp_ns: int, points: npt.NDArray[np.floating], frame_id: str
     ) -> None:
+        # Ouster, Hesai and Livox drivers write (0, 0, 0) for a beam without a return: no
+        # point at all, not an obstacle at the sensor's own origin. Dropped, counted.
+        no_return = np.all(points == 0.0, axis=1)
+        dropped = int(np.count_nonzero(no_return))
+        if dropped:
+            points = points[~no_return]
+            self.counts.no_return[name] = self.counts.no_return.get(name, 0) + dropped
         self._state[name].messages.append(_Message(stamp_ns, frame_name(frame_id), points))
 
     # ------------------------------------------------------------ contributions
@@ -277,11 +298,20 @@ class ExtraSources:
         return scan.with_ranges(scan.ranges, frame_id=output.frame_id, stamp_ns=output.stamp_ns)
 
 
-def _camera_config(config: FusionConfig, source: CameraSource) -> FusionConfig:
-    """The fusion settings of one camera: its own slab where it sets one."""
+def camera_config(config: FusionConfig, source: CameraSource) -> FusionConfig:
+    """The fusion settings of one camera: its own slab and pairing window where it sets them."""
     changes = {}
+    if source.max_time_offset is not None:
+        changes['max_time_offset'] = source.max_time_offset
     if source.min_obstacle_height is not None:
         changes['min_obstacle_height'] = source.min_obstacle_height
     if source.max_obstacle_height is not None:
         changes['max_obstacle_height'] = source.max_obstacle_height
     return config.with_changes(**changes) if changes else config
+
+
+def primary_camera_config(config: FusionConfig) -> FusionConfig:
+    """The fusion settings of the camera paired with the first LiDAR: the first named one's
+    own (`camera_config`), or `config` itself when no camera is named."""
+    cameras = config.sources.cameras
+    return camera_config(config, cameras[0]) if cameras else config

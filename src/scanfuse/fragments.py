@@ -72,6 +72,11 @@ class FragmentAssembler(Generic[T]):
             out.append(self._give_out())
         return out
 
+    def flush(self) -> list[tuple[Scan, T]]:
+        """The revolution begun, as far as it came (the end of a recording), with the token
+        of its last piece; padded with NaN to the learned length once one is known."""
+        return [self._give_out()] if self._current.pieces else []
+
     def _complete(self) -> bool:
         current = self._current
         readings = current.readings

@@ -47,6 +47,7 @@ import numpy as np
 
 from scanfuse.bearing import fast_atan2
 from scanfuse.compiled import compiled
+from scanfuse.config import MAX_MEMORY_CELLS, memory_grid_side
 from scanfuse.distortion import distortion_coefficients
 from scanfuse.errors import InputError
 from scanfuse.scan import TWO_PI
@@ -67,7 +68,7 @@ if TYPE_CHECKING:
 # its own slot only) 0.47 % but a collision and three goals fewer, 0.125 the same collision.
 OWN_WIDTH = 0.25
 # Cells kept at most: 2^21 (about 60 MB of arrays); a larger radius needs larger cells.
-MAX_CELLS = 1 << 21
+MAX_CELLS = MAX_MEMORY_CELLS
 # Heights of the slab a remembered point is tried at, as fractions from bottom to top.
 CLEAR_HEIGHTS = (0.1, 0.5, 0.9)
 # How far beyond a point the depth must lie to count as seeing past it, metres at depth z:
@@ -97,7 +98,7 @@ class MemorySettings:
     @property
     def side(self) -> int:
         """Cells along one side of the rolling grid (covers the radius with a margin)."""
-        return math.ceil(2.0 * self.radius / self.cell) + 2
+        return memory_grid_side(self.radius, self.cell)
 
 
 @dataclass(frozen=True)

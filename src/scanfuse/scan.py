@@ -23,6 +23,13 @@ if TYPE_CHECKING:
     AngleArray = npt.NDArray[np.float64]
 
 TWO_PI = 2.0 * math.pi
+# Limits of the numbers of a LaserScan that size what scanfuse allocates for it (its own
+# readings, a 360-degree grid of its increment, the obstacle memory's projection of a turn):
+# beyond them a scan is malformed (`check_scan_limits`). 2^17 readings a turn is an
+# increment of 0.0027 degrees, ten times finer than any scanner's.
+MAX_READINGS = 1 << 17
+MAX_SCAN_ANGLE = 4.0 * math.pi  # radians either way: two turns
+MAX_TIME_INCREMENT = 1.0  # seconds between two beams
 
 
 @dataclass(frozen=True)
@@ -147,6 +154,37 @@ class AngleGrid:
         return index
 
 
+def check_scan_limits(scan: Scan) -> None:
+    """Refuse (InputError) a scan whose numbers would size allocations without bound or
+    break the arithmetic of a turn: more than MAX_READINGS readings, or a turn of them; an
+    increment beyond a turn; angles beyond MAX_SCAN_ANGLE; a time_increment that is not a
+    finite number of at most MAX_TIME_INCREMENT seconds."""
+    step = abs(scan.angle_increment)
+    problems = []
+    if len(scan) > MAX_READINGS:
+        problems.append(f'{len(scan)} readings (at most {MAX_READINGS})')
+    if step > TWO_PI:
+        problems.append(f'angle_increment {scan.angle_increment:g} rad is more than a turn')
+    elif TWO_PI / step > MAX_READINGS:
+        problems.append(
+            f'angle_increment {scan.angle_increment:g} rad makes {TWO_PI / step:.3g} readings '
+            f'a turn (at most {MAX_READINGS})'
+        )
+    if max(abs(scan.angle_min), abs(scan.angle_max)) > MAX_SCAN_ANGLE:
+        problems.append(
+            f'angle_min {scan.angle_min:g} and angle_max {scan.angle_max:g} rad are not both '
+            f'within +-{MAX_SCAN_ANGLE:.4g} rad (two turns)'
+        )
+    if not abs(scan.time_increment) <= MAX_TIME_INCREMENT:
+        problems.append(
+            f'time_increment {scan.time_increment:g} s is not a number of at most '
+            f'{MAX_TIME_INCREMENT:g} s'
+        )
+    if problems:
+        msg = f'{"; ".join(problems)}; the driver publishes a malformed LaserScan'
+        raise InputError(msg)
+
+
 def full_circle(scan: Scan) -> Scan | None:
     """`scan` on a 360-degree grid of its own increment, NaN where it has no reading.
 
@@ -162,8 +200,8 @@ def full_circle(scan: Scan) -> Scan | None:
     sign = 1.0 if scan.angle_increment > 0.0 else -1.0
     # Whole increments between the scan's first angle and the circle's start.
     shift = math.floor((sign * scan.angle_min + math.pi) / step + 1e-9)
-    if shift + len(scan) > count:
-        shift = count - len(scan)  # a grid beyond +-pi: keep every reading, start earlier
+    # A grid beyond +-pi: keep every reading, start earlier (or, beyond -pi, where it starts).
+    shift = min(max(shift, 0), count - len(scan))
     angle_min = scan.angle_min - sign * shift * step
     ranges = np.full(count, np.nan, dtype=np.float32)
     ranges[shift : shift + len(scan)] = scan.ranges

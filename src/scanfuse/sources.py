@@ -76,8 +76,11 @@ class Mounting(BaseModel):
 class LidarSource(Mounting):
     name: str
     topic: str = Field(description='sensor_msgs/LaserScan topic')
-    max_time_offset: float = Field(
-        0.1, gt=0.0, le=10.0, description='freshest scan used within this many seconds'
+    max_time_offset: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description='freshest scan used within this many seconds (default: max_time_offset)',
     )
     assemble_fragments: bool = assemble_fragments_field()
     fragment_timeout: float = fragment_timeout_field()
@@ -87,17 +90,29 @@ class CameraSource(Mounting):
     name: str
     depth_topic: str = Field(description='depth Image topic (16UC1 mm or 32FC1 m)')
     camera_info_topic: str = Field(description='CameraInfo topic')
-    max_time_offset: float = Field(0.1, gt=0.0, le=10.0, description='seconds')
-    min_obstacle_height: float | None = Field(None, description='own slab bottom, metres')
-    max_obstacle_height: float | None = Field(None, description='own slab top, metres')
+    max_time_offset: float | None = Field(
+        None, gt=0.0, le=10.0, description='seconds (default: max_time_offset)'
+    )
+    min_obstacle_height: float | None = Field(
+        None, ge=-_REACH, le=_REACH, description='own slab bottom, metres (default: global)'
+    )
+    max_obstacle_height: float | None = Field(
+        None, ge=-_REACH, le=_REACH, description='own slab top, metres (default: global)'
+    )
 
 
 class CloudSource(Mounting):
     name: str
     topic: str = Field(description='sensor_msgs/PointCloud2 topic')
-    max_time_offset: float = Field(0.1, gt=0.0, le=10.0, description='seconds')
-    min_height: float | None = Field(None, description='slab bottom, metres (default: global)')
-    max_height: float | None = Field(None, description='slab top, metres (default: global)')
+    max_time_offset: float | None = Field(
+        None, gt=0.0, le=10.0, description='seconds (default: max_time_offset)'
+    )
+    min_height: float | None = Field(
+        None, ge=-_REACH, le=_REACH, description='slab bottom, metres (default: global)'
+    )
+    max_height: float | None = Field(
+        None, ge=-_REACH, le=_REACH, description='slab top, metres (default: global)'
+    )
     range_max: float = Field(10.0, gt=0.0, le=1000.0, description='metres from the output origin')
 
 
@@ -165,6 +180,22 @@ def split_sources(values: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any
             name, field = key.split('.', 1)
             sections.setdefault(name, {})[field] = value
             del rest[key]
+    listed_names = [
+        (kind, str(name))
+        for kind in KINDS
+        if isinstance(lists[kind], list | tuple)
+        for name in lists[kind]
+    ]
+    seen: dict[str, str] = {}
+    for kind, name in listed_names:
+        if name in seen:
+            where = kind if seen[name] == kind else f'{seen[name]} and {kind}'
+            msg = (
+                f'source name {name!r} is listed twice ({where}); every source needs its own '
+                'name and section'
+            )
+            raise ConfigError(msg)
+        seen[name] = kind
     sources: dict[str, Any] = {}
     for kind in KINDS:
         names = lists[kind] or []

@@ -45,7 +45,7 @@ import numpy as np
 from scanfuse.config import Method
 from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.errors import InputError, ScanfuseError, TransformError
-from scanfuse.extras import ExtraSources
+from scanfuse.extras import ExtraSources, primary_camera_config
 from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
@@ -60,7 +60,7 @@ from scanfuse.memory import (
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.pipeline import FusionPipeline
-from scanfuse.scan import full_circle
+from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import Extrinsics, Transform
 
@@ -185,6 +185,7 @@ class StreamCounts:
     memory_dropped: int = 0  # times the memory was dropped (odometry lost or jumped)
     drift_matched: int = 0  # LiDAR scans whose match corrected the memory's odometry
     drift_refused: int = 0  # matches refused (the memory followed odometry alone)
+    odometry_ignored: int = 0  # samples of a second odometry source (see `add_odometry`)
     passed: dict[Passed, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
@@ -238,6 +239,7 @@ class FusionStream(Generic[T]):
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
+        self.odometry_source: str | None = None  # the odometry topic or TF, whichever came first
         self.memory: ObstacleMemory | None = None
         self._memory_segment: int | None = None  # odometry segment the points belong to
         # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
@@ -247,33 +249,45 @@ class FusionStream(Generic[T]):
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
+        self.assembler: FragmentAssembler[T] | None = None
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
 
     def reconfigure(self, config: FusionConfig) -> None:
-        """Use `config` from the next scan on (tables are rebuilt, odometry limits reset)."""
+        """Use `config` from the next scan on (tables are rebuilt, odometry limits reset).
+
+        Everything new is built before anything is changed: a configuration refused here
+        (ScanfuseError) leaves the stream as it was.
+        """
+        # The first camera's own section (its slab and pairing window) holds for it, as
+        # another camera's does.
+        pipeline = FusionPipeline(primary_camera_config(config))
+        parameters = Extrinsics.from_config(config)
+        extras = ExtraSources(config)
+        ground_settings = GroundSettings.from_config(pipeline.config)
+        ground = getattr(self, 'ground', None)  # what it learnt stays while its settings hold
+        if not config.ground_estimate:
+            ground = None
+        elif ground is None or ground.settings != ground_settings:
+            ground = GroundTracker(ground_settings)
+        settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         previous = getattr(self, 'config', None)
         if previous is not None and previous.memory_scan_matching != config.memory_scan_matching:
             # The remembered points lie in the corrected frame or odometry's: not in the other.
             self._drop_memory('memory_scan_matching changed')
         self.config = config
-        self.pipeline = FusionPipeline(config)
-        self._parameters = Extrinsics.from_config(config)
-        self._max_offset_ns = seconds_to_ns(config.max_time_offset)
+        self.pipeline = pipeline
+        self._parameters = parameters
+        self._max_offset_ns = seconds_to_ns(pipeline.config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
-        self.extras = ExtraSources(config)
-        self.ground = (
-            GroundTracker(GroundSettings.from_config(config)) if (config.ground_estimate) else None
-        )
+        self.extras = extras
+        self.ground = ground
         self._ground_frame_ns: int | None = None
-        self.assembler: FragmentAssembler[T] | None = (
-            FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
-        )
-        settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
+        self._reassemble(config)
         if not config.memory:
             self.memory = None
             self.drift.reset()
@@ -286,6 +300,26 @@ class FusionStream(Generic[T]):
             self._memory_segment = None
         else:
             self.memory.settings = settings  # what is remembered stays
+
+    def _reassemble(self, config: FusionConfig) -> None:
+        """Keep the fragment assembler (and the revolution it learned: the reading count
+        must not change) while its settings hold; a revolution begun when they change or
+        assembly stops joins the waiting scans, never lost."""
+        old = self.assembler
+        keep = (
+            config.assemble_fragments
+            and old is not None
+            and old.timeout_ns == round(config.fragment_timeout * 1e9)
+        )
+        if keep:
+            return
+        if old is not None:
+            arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
+            for revolution, token in old.flush():
+                self._admit(revolution, token, arrived or 0, assembled=True)
+        self.assembler = (
+            FragmentAssembler(config.fragment_timeout) if config.assemble_fragments else None
+        )
 
     # ------------------------------------------------------------ inputs
 
@@ -340,15 +374,22 @@ class FusionStream(Generic[T]):
 
         Scans of the first LiDAR (`source` None or its name) make output scans; those of
         other named LiDARs are kept for them. A scan with no readings is refused (InputError):
-        it has no grid to fuse onto, nothing to pass through.
+        it has no grid to fuse onto, nothing to pass through. So is one whose numbers would
+        size allocations without bound (`check_scan_limits`); the adapter counts both as
+        malformed (`note_malformed`).
         """
+        topic = source or self.config.scan_topic
         if scan.ranges.size == 0:
-            topic = source or self.config.scan_topic
             msg = (
                 f'LiDAR scan on {topic} has no readings (angle_min {scan.angle_min:g}, '
                 f'angle_max {scan.angle_max:g}): nothing to fuse, skipped; check the driver'
             )
             raise InputError(msg)
+        try:
+            check_scan_limits(scan)
+        except InputError as err:
+            msg = f'LiDAR scan on {topic} skipped: {err}'
+            raise InputError(msg) from err
         if self._is_extra(source):
             self.extras.add_scan(str(source), scan)
             return self._release(now_ns)
@@ -362,6 +403,11 @@ class FusionStream(Generic[T]):
     def _enqueue(
         self, scan: Scan, token: T, now_ns: int, *, assembled: bool
     ) -> list[StreamOutput[T]]:
+        self._admit(scan, token, now_ns, assembled=assembled)
+        return self._release(now_ns)
+
+    def _admit(self, scan: Scan, token: T, now_ns: int, *, assembled: bool) -> None:
+        """`scan` joins the scans waiting for their depth frame."""
         self.counts.scans += 1
         if self._started_ns is None:
             self._started_ns = now_ns
@@ -376,7 +422,6 @@ class FusionStream(Generic[T]):
         self._pending.append(
             _Pending(scan, token, now_ns, now_ns + self.pair_wait_ns, assembled=assembled)
         )
-        return self._release(now_ns)
 
     def add_cloud(
         self,
@@ -390,14 +435,40 @@ class FusionStream(Generic[T]):
         if not self._is_extra(source):
             msg = f'no cloud source named {source!r}; clouds: {", ".join(self.extras.clouds)}'
             raise InputError(msg)
+        points = np.asarray(points)
+        if points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in 'fiu':
+            msg = (
+                f'cloud {source!r}: points must be an N x 3 array of real x, y, z (metres), got '
+                f'shape {points.shape} of {points.dtype}; pass only the x, y, z columns'
+            )
+            raise InputError(msg)
         self.extras.add_cloud(source, stamp_ns, points, frame_id)
         return self._release(now_ns)
 
     def _is_extra(self, source: str | None) -> bool:
         return source is not None and source in self.extras
 
-    def add_odometry(self, stamp_ns: int, pose: PlanarPose) -> None:
-        """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF)."""
+    def add_odometry(self, stamp_ns: int, pose: PlanarPose, *, source: str | None = None) -> None:
+        """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF).
+
+        `source` names where it came from (None: the odometry topic). Odometry is taken from
+        the first source that delivers; another's samples are ignored: a robot publishing
+        both /odom and TF odom -> base_link delivers one estimate twice, and the two streams
+        arrive interleaved out of stamp order.
+        """
+        name = source or self.config.odom_topic
+        if self.odometry_source is None:
+            self.odometry_source = name
+        elif name != self.odometry_source:
+            self.counts.odometry_ignored += 1
+            if f'odometry ignored {name}' not in self._warned:
+                self._warned.add(f'odometry ignored {name}')
+                logger.info(
+                    'odometry taken from %s; %s carries it too and is ignored',
+                    self.odometry_source,
+                    name,
+                )
+            return
         before = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
         self.odometry.add(stamp_ns, pose)
         after = self.odometry.breaks, self.odometry.rejected, self.odometry.out_of_order
@@ -424,7 +495,9 @@ class FusionStream(Generic[T]):
         for transform in transforms:
             if not static and transform.parent == odom and transform.child == base:
                 if odometry:
-                    self.add_odometry(transform.stamp_ns, _planar(transform))
+                    self.add_odometry(
+                        transform.stamp_ns, _planar(transform), source=f'TF {odom} -> {base}'
+                    )
             else:
                 mounting.append(transform)
         try:
@@ -446,11 +519,16 @@ class FusionStream(Generic[T]):
         return self._release(now_ns)
 
     def finish(self) -> list[StreamOutput[T]]:
-        """Every scan still waiting (end of a recording), fused with what has arrived."""
+        """Every scan still waiting (end of a recording), fused with what has arrived; with
+        fragment assembly, the revolution begun too (padded with NaN once one is known)."""
+        if self.assembler is not None:
+            arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
+            for revolution, token in self.assembler.flush():
+                self._admit(revolution, token, arrived or 0, assembled=True)
         out = []
         while self._pending:
             pending = self._pending.popleft()
-            out.append(self._resolve(pending))
+            out.append(self._settle(pending))
         return out
 
     def next_deadline_ns(self) -> float | None:
@@ -483,7 +561,7 @@ class FusionStream(Generic[T]):
     def _release(self, now_ns: int) -> list[StreamOutput[T]]:
         out = []
         while self._pending and self._ready(self._pending[0], now_ns):
-            out.append(self._resolve(self._pending.popleft()))
+            out.append(self._settle(self._pending.popleft()))
         self._prune_frames()
         return out
 
@@ -514,6 +592,26 @@ class FusionStream(Generic[T]):
         return best
 
     # ------------------------------------------------------------ one scan
+
+    def _settle(self, pending: _Pending[T]) -> StreamOutput[T]:
+        """`_resolve`; a scan whose arithmetic fails is counted as malformed and passes
+        through alone, so the scans released with it still leave."""
+        try:
+            return self._resolve(pending)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:
+            self.note_malformed('scan', err)
+            self.counts.passed[Passed.FUSION_FAILED] = (
+                self.counts.passed.get(Passed.FUSION_FAILED, 0) + 1
+            )
+            clean = _without_error_values(pending.scan)
+            return StreamOutput(
+                token=pending.token,
+                lidar=clean,
+                fused=clean if clean is not pending.scan or pending.assembled else None,
+                depth_scan=None,
+                arrived_ns=pending.arrived_ns,
+                passed=Passed.FUSION_FAILED,
+            )
 
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan
@@ -590,11 +688,13 @@ class FusionStream(Generic[T]):
         self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
     ) -> StreamOutput[T]:
         self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's are.
+        clean = _without_error_values(lidar)
         output = StreamOutput(
             token=pending.token,
-            lidar=lidar,
+            lidar=clean,
             # A scan that is not one received message as it came is published anew.
-            fused=lidar if lidar is not pending.scan or pending.assembled else None,
+            fused=clean if clean is not pending.scan or pending.assembled else None,
             depth_scan=None,
             arrived_ns=pending.arrived_ns,
             passed=reason,
@@ -668,8 +768,8 @@ class FusionStream(Generic[T]):
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
-        config = self.config
-        slab = (config.min_obstacle_height, config.max_obstacle_height)
+        own = self.pipeline.config  # the first camera's slab (`reconfigure`)
+        slab = (own.min_obstacle_height, own.max_obstacle_height)
         base_to_laser = self.base_to_laser(scan.frame_id)
         pose = self._corrected(scan, base.pose, base_to_laser)
         placement = Placement.of(pose, base_to_laser)
@@ -704,6 +804,11 @@ class FusionStream(Generic[T]):
             unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen, robot=robot)
         ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
+        # REP-117: a published finite reading lies inside its limits. A remembered point
+        # nearer than range_min (the robot pushed into it) is no reading of this scan, as
+        # the merge already treats it.
+        with np.errstate(invalid='ignore'):
+            ranges[(ranges < scan.range_min) | (ranges > scan.range_max)] = np.nan
         remembered = scan.with_ranges(
             ranges.astype(np.float32),
             range_min=scan.range_min,
@@ -782,7 +887,10 @@ class FusionStream(Generic[T]):
             frame.depth,
             frame.camera,
             odom_to_optical,
-            slab=(config.min_obstacle_height, config.max_obstacle_height),
+            slab=(
+                self.pipeline.config.min_obstacle_height,
+                self.pipeline.config.max_obstacle_height,
+            ),
             range_min=config.range_min,
             range_max=config.range_max,
             agreement=MEMORY_NEIGHBOUR_AGREEMENT,
@@ -950,6 +1058,15 @@ class FusionStream(Generic[T]):
         if key not in self._warned:
             self._warned.add(key)
             logger.warning(message)
+
+
+def _without_error_values(scan: Scan) -> Scan:
+    """`scan` with every finite value that is no real reading (`normalized_ranges`) as NaN;
+    `scan` itself when it holds none, so that its own bytes can be published."""
+    ranges = normalized_ranges(scan)
+    if np.array_equal(ranges, scan.ranges, equal_nan=True):
+        return scan
+    return scan.with_ranges(ranges)
 
 
 def _planar(transform: StampedTransform) -> PlanarPose:

@@ -176,3 +176,31 @@ def test_the_params_command_prints_and_writes_the_table(tmp_path, capsys):
     out = tmp_path / 'parameters.md'
     assert main(['params', '--output', str(out)]) == 0
     assert out.read_text(encoding='utf-8') == parameters_markdown()
+
+
+def test_every_end_of_every_range_is_refused_by_the_config_or_works():
+    """Issue 26.1: a value the table allows either works or FusionConfig refuses it (an order
+    between two parameters, such as range_min below range_max), never the stream later (the
+    node applied it at run time and ended)."""
+    from scanfuse.stream import FusionStream
+
+    checked = 0
+    for spec in params.fusion_param_specs(FusionConfig()):
+        if spec.kind not in (Kind.INTEGER, Kind.DOUBLE) or spec.name == 'scan_row':
+            continue
+        bounds = spec.bounds
+        for end, exclusive in (
+            (bounds.low, bounds.low_exclusive),
+            (bounds.high, bounds.high_exclusive),
+        ):
+            if end is None or exclusive:
+                continue
+            try:
+                config = FusionConfig.from_dict({spec.name: end})
+            except ConfigError as err:
+                refusal = str(err)
+                assert 'must be' in refusal, (spec.name, end, refusal)
+                continue
+            FusionStream(config)
+            checked += 1
+    assert checked > 40

@@ -34,6 +34,7 @@ from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
     TF_MESSAGE,
     depth_to_cdr,
     typestore,
@@ -62,6 +63,12 @@ def _ros_types() -> dict[str, Any]:
         pass
     else:
         types[TF_MESSAGE] = TFMessage
+    try:
+        from nav_msgs.msg import Odometry
+    except ImportError:
+        pass
+    else:
+        types[ODOMETRY] = Odometry
     return types
 
 
@@ -152,9 +159,10 @@ def play(
     return 0
 
 
-def flood_messages(seed: int = 0) -> dict[str, list[bytes]]:
+def flood_messages(seed: int = 0, *, sources: bool = False) -> dict[str, list[bytes]]:
     """Malformed messages per topic of the scene, the kinds drivers and attackers send:
-    random bytes, truncated CDR, and well-formed CDR with values that make no sense."""
+    random bytes, truncated CDR, and well-formed CDR with values that make no sense. With
+    `sources`, also on the rear LiDAR's topic and /odom (issue 26)."""
     import math
 
     import numpy as np
@@ -192,7 +200,7 @@ def flood_messages(seed: int = 0) -> dict[str, list[bytes]]:
     def noise() -> bytes:
         return rng.integers(0, 256, int(rng.integers(0, 400)), dtype=np.uint8).tobytes()
 
-    return {
+    messages = {
         '/scan': [
             noise(),
             good_scan[: len(good_scan) // 2],
@@ -210,13 +218,64 @@ def flood_messages(seed: int = 0) -> dict[str, list[bytes]]:
             bytes(store.serialize_cdr(nan_info, CAMERA_INFO)),
         ],
     }
+    if sources:
+        messages.update(_source_flood(store, good_scan, noise))
+    return messages
 
 
-def flood(seconds: float, *, done: Path | None = None) -> int:
+def _source_flood(
+    store: Any, good_scan: bytes, noise: Callable[[], bytes]
+) -> dict[str, list[bytes]]:
+    """Issue 26's scans on the rear LiDAR's topic (increments that would size gigabytes,
+    angles and times that break a turn's arithmetic, a Hokuyo's zeros) and bad odometry."""
+    import math
+
+    import numpy as np
+
+    from scanfuse.motion import PlanarPose
+    from scanfuse.ros.messages import OdometrySample, odometry_to_cdr
+    from tests.support.synthetic import REAR_TOPIC
+
+    odd = []
+    for field, value in (
+        ('angle_increment', 1e-7),
+        ('angle_increment', 1e-9),
+        ('angle_min', -1e12),
+        ('time_increment', math.nan),
+        ('angle_increment', 13.0),
+    ):
+        message: Any = store.deserialize_cdr(good_scan, LASER_SCAN)
+        setattr(message, field, value)
+        message.header.frame_id = 'rear_laser'
+        odd.append(bytes(store.serialize_cdr(message, LASER_SCAN)))
+    zeros: Any = store.deserialize_cdr(good_scan, LASER_SCAN)
+    zeros.range_min = 0.0
+    zeros.ranges = np.zeros(len(zeros.ranges), dtype=np.float32)
+    zeros.header.frame_id = 'rear_laser'
+    odd.append(bytes(store.serialize_cdr(zeros, LASER_SCAN)))
+    sample = OdometrySample(1, 'odom', 'base_link', PlanarPose(0.0, 0.0, 0.0))
+    odometry = odometry_to_cdr(sample, store)
+    nan_pose: Any = store.deserialize_cdr(odometry, ODOMETRY)
+    nan_pose.pose.pose.orientation.w = math.nan
+    return {
+        REAR_TOPIC: [noise(), *odd],
+        '/odom': [
+            noise(),
+            odometry[: len(odometry) // 2],
+            bytes(store.serialize_cdr(nan_pose, ODOMETRY)),
+        ],
+    }
+
+
+def flood(seconds: float, *, done: Path | None = None, sources: bool = False) -> int:
     """Publish `flood_messages` round after round for `seconds` (0 when someone listened)."""
+    from tests.support.synthetic import REAR_TOPIC
+
     types = _ros_types()
     kinds = {'/scan': LASER_SCAN, '/camera/depth/image_raw': IMAGE}
     kinds['/camera/depth/camera_info'] = CAMERA_INFO
+    if sources:
+        kinds.update({REAR_TOPIC: LASER_SCAN, '/odom': ODOMETRY})
     node = rclpy.create_node('scanfuse_flooder')
     publishers = {
         topic: node.create_publisher(types[kind], topic, qos_profile_sensor_data)
@@ -229,7 +288,7 @@ def flood(seconds: float, *, done: Path | None = None) -> int:
     ):
         print('flood: the node did not subscribe in time', file=sys.stderr)
         return 2
-    bad = flood_messages()
+    bad = flood_messages(sources=sources)
     sent = 0
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -444,6 +503,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     flood_cmd = commands.add_parser('flood')
     flood_cmd.add_argument('--seconds', type=float, required=True)
     flood_cmd.add_argument('--done', type=Path, default=None)
+    flood_cmd.add_argument('--sources', action='store_true', help='also the rear LiDAR, /odom')
     relay_cmd = commands.add_parser('relay')
     relay_cmd.add_argument('source')
     relay_cmd.add_argument('target')
@@ -467,7 +527,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == 'qos-probe':
             return qos_probe(args.out)
         if args.command == 'flood':
-            return flood(args.seconds, done=args.done)
+            return flood(args.seconds, done=args.done, sources=args.sources)
         if args.command == 'record':
             return record(
                 args.out,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any
 
 from scanfuse.config import NODE_ONLY, FusionConfig, read_ros_params
@@ -39,6 +40,23 @@ def parameters_of(path: Path) -> dict[str, Any]:
     return values
 
 
+def check_output_folder(out: Path) -> None:
+    """Refuse (ConfigError) an --out that cannot become a folder to write in, before any
+    work: an existing file, or a path under a file or a folder that cannot be written."""
+    if out.exists() and not out.is_dir():
+        msg = f'--out {out} exists and is not a folder; give a folder path'
+        raise ConfigError(msg)
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        msg = f'--out {out}: {existing} is not a folder; give a folder path'
+        raise ConfigError(msg)
+    if not os.access(existing, os.W_OK | os.X_OK):
+        msg = f'--out {out}: cannot write in {existing}; give a folder you can write'
+        raise ConfigError(msg)
+
+
 def run_evaluate(
     out: Path,
     *,
@@ -58,6 +76,7 @@ def run_evaluate(
     from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
+    check_output_folder(out)
     changes: dict[str, object] = {}
     if params is not None:
         changes['params'] = parameters_of(params)

@@ -48,6 +48,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
+from scanfuse.extras import primary_camera_config
 from scanfuse.frames import frame_name
 from scanfuse.progress import NullProgress, Progress
 from scanfuse.ros.messages import (
@@ -534,6 +535,22 @@ def _guard_read(
         raise BagError(msg) from err
 
 
+def _check_stored(source: Path, topic: str, index: int, log_time: int, raw: object) -> None:
+    """A message as its storage holds it: bytes at a log time of zero or later. A db3 whose
+    data column holds TEXT, or whose timestamp is negative, is no bag rosbags wrote."""
+    problem = None
+    if not isinstance(raw, bytes | bytearray | memoryview):
+        problem = f'its data is {type(raw).__name__}, not bytes'
+    elif not isinstance(log_time, int) or log_time < 0:
+        problem = f'its log time is {log_time} ns, before 1970'
+    if problem is not None:
+        msg = (
+            f'cannot read bag {source}: {topic} message {index}: {problem}; '
+            'is it complete and a bag?'
+        )
+        raise BagError(msg)
+
+
 def _fresh_store(distro: Distro) -> Typestore:
     """A private typestore of `distro` (types of ROS 1 bags may be added to it)."""
     store = get_typestore(Stores.EMPTY)
@@ -587,8 +604,9 @@ class _BagJob:
         self.first_camera: CameraModel | None = None
         # Bags are read in log-time order: a scan waits for the first frame stamped after it,
         # or until no frame logged up to REORDER_S late can still be near enough.
+        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
         self.stream: FusionStream[_Lidar] = FusionStream(
-            config, pair_wait=config.max_time_offset + REORDER_S, release_when_silent=False
+            config, pair_wait=pair_wait, release_when_silent=False
         )
         self.scan_frame = ''
         self.depth_frame = ''
@@ -645,6 +663,7 @@ class _BagJob:
                 return
             connection, log_time, raw = item
             index = indices.get(connection.topic, 0)
+            _check_stored(self.source, connection.topic, index, log_time, raw)
             indices[connection.topic] = index + 1
             self.position = MessagePosition(
                 connection.topic,
@@ -831,11 +850,18 @@ class _BagJob:
         return self.stream.extrinsics_source
 
     def _read_mounting(self) -> None:
-        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it)."""
+        """The mounting poses of /tf_static and /tf, before the pass (odometry comes in it).
+
+        A TF message that cannot be used (a NaN quaternion) is passed over here; the pass
+        skips and lists it (or, with --strict, stops at it) as it does any malformed message.
+        """
         for topic, static in ((TF_STATIC_TOPIC, True), (TF_TOPIC, False)):
             connections = [c for c in self.connections(topic) if self.msgtype(c) == TF_MESSAGE]
             for connection, _, raw in self.messages(connections):
-                transforms = transforms_from_msg(self.decode(connection, raw))
+                try:
+                    transforms = transforms_from_msg(self.decode(connection, raw))
+                except (ScanfuseError, SerdeError, ValueError, struct.error):
+                    continue
                 self.stream.add_transforms(transforms, static=static, odometry=False)
 
     # ------------------------------------------------------------ the pass
@@ -920,7 +946,7 @@ class _BagJob:
                     writer.write(outputs[connection.id, id(connection.owner)], log_time, cdr)
                     try:
                         emit(self._feed(connection, cdr, log_time))
-                    except (MessageError, SerdeError, ValueError, struct.error) as err:
+                    except (ScanfuseError, SerdeError, ValueError, struct.error) as err:
                         self._malformed(malformed, err, strict=strict)
                     progress.advance()
                 emit(stream.finish())

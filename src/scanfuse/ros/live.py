@@ -31,6 +31,7 @@ from scanfuse.ros.messages import (
     transforms_from_cdr,
     typestore,
 )
+from scanfuse.scan import normalized_ranges
 from scanfuse.stream import FusionStream, Passed, StreamOutput
 
 if TYPE_CHECKING:
@@ -241,16 +242,29 @@ class LiveFusion:
             self.stream.note_malformed(f'scan ({source})' if extra else 'scan', err)
             return []
         if extra:
-            return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now), source=source))
+            return self._add_scan(scan, raw, now, source)
         self._last_scan = now
         self._window.scans += 1
         self._window.stamps.append(scan.stamp_ns)
-        if self._grid is None or not (
-            grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id
+        if len(scan) and (
+            self._grid is None
+            or not (grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id)
         ):
             self._grid = (scan.grid, scan.frame_id)
             self._prepare_tables()
-        return self._outputs(self.stream.add_scan(scan, bytes(raw), _ns(now)))
+        return self._add_scan(scan, raw, now, None)
+
+    def _add_scan(
+        self, scan: Scan, raw: RawMessage, now: float, source: str | None
+    ) -> list[Output]:
+        """A decoded scan into the stream; one it refuses is counted as malformed, and the
+        scans released meanwhile still leave."""
+        try:
+            released = self.stream.add_scan(scan, bytes(raw), _ns(now), source=source)
+        except ScanfuseError as err:
+            self.stream.note_malformed(f'scan ({source})' if source else 'scan', err)
+            released = self.stream.tick(_ns(now))
+        return self._outputs(released)
 
     def on_depth(self, raw: RawMessage, now: float, source: str | None = None) -> list[Output]:
         self._note_start(now)
@@ -396,9 +410,18 @@ class LiveFusion:
 
     def _instant(self, result: StreamOutput[bytes]) -> bytes | None:
         """The fused scan without the memory; the LiDAR's own bytes when nothing was fused."""
-        if result.instant is not None:
-            return self._cdr(result.instant)
-        return self._cdr(result.lidar) if result.deskewed else result.token
+        scan = result.instant if result.instant is not None else result.fused
+        return result.token if scan is None else self._cdr(scan)
+
+    def passthrough(self, raw: RawMessage) -> bytes:
+        """A LiDAR scan's bytes to publish unchanged: its own when it holds no driver's
+        error value (a Hokuyo's 0.0), else re-encoded with those as NaN (MessageError: it
+        cannot be decoded)."""
+        scan = scan_from_cdr(raw, self.store)
+        ranges = normalized_ranges(scan)
+        if np.array_equal(ranges, scan.ranges, equal_nan=True):
+            return bytes(raw)
+        return scan_to_cdr(scan.with_ranges(ranges), self.store)
 
     def _cdr(self, scan: Scan | None) -> bytes | None:
         return None if scan is None else scan_to_cdr(scan, self.store)
@@ -438,6 +461,7 @@ class LiveFusion:
             'published': str(self.published),
             'passed through': str(counts.passed_through),
             'motion compensated': str(counts.compensated),
+            'odometry from': self.stream.odometry_source or 'none yet',
             'de-skewed': str(counts.deskewed),
             'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
             'memory dropped': str(counts.memory_dropped),
@@ -504,6 +528,8 @@ class LiveFusion:
             window.source_used[name] = used - used_before.get(name, 0)
             window.source_missed[name] = missing + no_mounting - missed_before.get(name, 0)
             values[f'source {name}'] = f'used {used}, missing {missing}, no mounting {no_mounting}'
+            if name in extras.clouds:
+                values[f'source {name}'] += f', no-return points {counts.no_return.get(name, 0)}'
         self._sources_reported = (
             {name: counts.used.get(name, 0) for name in extras.names},
             {

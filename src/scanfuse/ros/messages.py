@@ -22,7 +22,7 @@ from scanfuse.camera import DEPTH_ENCODINGS, CameraModel, decode_depth
 from scanfuse.errors import InputError, MessageError
 from scanfuse.frames import StampedTransform, frame_name
 from scanfuse.motion import PlanarPose
-from scanfuse.scan import Scan
+from scanfuse.scan import Scan, check_scan_limits
 from scanfuse.transforms import MAX_TRANSLATION
 
 if TYPE_CHECKING:
@@ -124,7 +124,7 @@ def scan_from_msg(message: Any) -> Scan:
     """`Scan` from a `sensor_msgs/LaserScan` object (ranges are not copied)."""
     intensities = np.asarray(message.intensities, dtype=np.float32)
     try:
-        return Scan(
+        scan = Scan(
             angle_min=float(message.angle_min),
             angle_max=float(message.angle_max),
             angle_increment=float(message.angle_increment),
@@ -137,9 +137,11 @@ def scan_from_msg(message: Any) -> Scan:
             frame_id=str(message.header.frame_id),
             stamp_ns=stamp_to_ns(message.header.stamp),
         )
+        check_scan_limits(scan)
     except InputError as err:
         msg = f'LaserScan in frame {message.header.frame_id!r} is unusable: {err}'
         raise MessageError(msg) from err
+    return scan
 
 
 def scan_to_msg(scan: Scan, store: Typestore | None = None) -> Any:

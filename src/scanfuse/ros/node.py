@@ -412,8 +412,14 @@ class ScanfuseNode:
             )
             if self.live.malformed[f'internal ({kind})'] == 1:
                 logger.exception('unexpected error handling a %s; the LiDAR passes through', kind)
-            # The LiDAR's own scan is always safe to publish.
-            return [] if lidar_raw is None else [_raw_output(lidar_raw)]
+            # The LiDAR's scan is always safe to publish (its error values as NaN).
+            return [] if lidar_raw is None else self._passed_through(lidar_raw)
+
+    def _passed_through(self, raw: bytes) -> list[Output]:
+        try:
+            return [_raw_output(self.live.passthrough(raw))]
+        except Exception:  # noqa: BLE001 - undecodable: nothing is safe to publish
+            return []
 
     def _publish(self, outputs: list[Output] | None) -> None:
         topics = self.topics
@@ -440,9 +446,16 @@ class ScanfuseNode:
             self.rosout.warning(f'parameter change rejected: {reason}')
             return SetParametersResult(successful=False, reason=reason)
         merged = {**current, **changes}
-        config = config_from_ros(merged)
-        settings = settings_from_ros(merged)
-        self.live.reconfigure(config)
+        try:
+            config = config_from_ros(merged)
+            settings = settings_from_ros(merged)
+            self.live.reconfigure(config)
+        # A change the checks let through but the stream cannot take is refused, never
+        # ends the node: the stream keeps its old configuration (`FusionStream.reconfigure`).
+        except Exception as err:  # noqa: BLE001
+            reason = f'cannot apply {changes}: {err}'
+            self.rosout.warning(f'parameter change rejected: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
         self.live.pair_wait = settings.pair_wait
         self.live.lidar_timeout = settings.lidar_timeout
         self.rosout.info(f'parameters changed: {changes}')

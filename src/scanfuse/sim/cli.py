@@ -41,6 +41,10 @@ def parse_backend(text: str) -> DepthBackend:
         raise SimError(msg) from None
 
 
+# Simulated seconds a recording may last: a day (at 30 Hz depth, far more than a disk holds).
+MAX_DURATION = 86_400.0
+
+
 def mounting_from_params(path: Path) -> dict[str, float]:
     """The simulated robot's sensor poses from a scanfuse parameter file (metres, radians)."""
     return robot_mounting(FusionConfig.from_ros_params(path))
@@ -67,6 +71,9 @@ def run_simulate(
 ) -> RecordSummary:
     """Record one run of the robot called `robot` (`ROBOTS`); `mounting` changes its first
     sensors' poses (metres, radians); `lidar` None: the robot's own LiDAR model."""
+    if not 0.0 < duration <= MAX_DURATION:  # also false for NaN
+        msg = f'--duration must be more than 0 and at most {MAX_DURATION:g} s, got {duration}'
+        raise SimError(msg)
     changes: dict[str, Any] = dict(mounting or {})
     spec = replace(robot_spec(robot), **changes)
     config = SimConfig(
