@@ -300,6 +300,14 @@ class FusionConfig(BaseModel):
     )
     odom_frame: str = Field('odom', description='odometry frame (REP-105) of TF odometry')
     odom_topic: str = Field('/odom', description='nav_msgs/Odometry topic')
+    imu_topic: str = Field(
+        '',
+        description=(
+            "sensor_msgs/Imu topic: the base's pitch and roll at each depth frame tilt the "
+            "mounting's floor (the ground estimate's prior, or the floor with it off); "
+            'empty: none (scanfuse bag takes the one Imu topic of a bag that holds one)'
+        ),
+    )
     memory: bool = Field(
         default=True,
         description=(

@@ -50,6 +50,7 @@ from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
+from scanfuse.imu import ImuHistory, base_tilt
 from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
@@ -189,6 +190,7 @@ class StreamCounts:
     passed: dict[Passed, int] = field(default_factory=dict)
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
+    imu_missed: int = 0  # depth frames with no IMU sample near them, once an IMU was heard
 
     @property
     def passed_through(self) -> int:
@@ -239,6 +241,7 @@ class FusionStream(Generic[T]):
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
+        self.imu = ImuHistory()
         self.odometry_source: str | None = None  # the odometry topic or TF, whichever came first
         self.memory: ObstacleMemory | None = None
         self._memory_segment: int | None = None  # odometry segment the points belong to
@@ -447,6 +450,26 @@ class FusionStream(Generic[T]):
 
     def _is_extra(self, source: str | None) -> bool:
         return source is not None and source in self.extras
+
+    def add_imu(
+        self, stamp_ns: int, orientation: tuple[float, float, float, float], frame_id: str = ''
+    ) -> None:
+        """An IMU's orientation (sensor_msgs/Imu, x y z w) at `stamp_ns`: the base's pitch
+        and roll then (`imu`). Its frame is placed on the base by TF (the base frame itself
+        when empty); one TF cannot place, or a quaternion that is not a unit one, is
+        counted as malformed."""
+        base_to_imu: Transform | None = Transform()
+        if frame_name(frame_id) not in ('', frame_name(self.config.base_frame)):
+            base_to_imu = self.mounting(frame_id, Transform())
+        try:
+            if base_to_imu is None:
+                msg = f'TF has no path from {self.config.base_frame} to the IMU frame {frame_id}'
+                raise TransformError(msg)
+            tilt = base_tilt(orientation, base_to_imu)
+        except ScanfuseError as err:
+            self.note_malformed('imu', err)
+            return
+        self.imu.add(stamp_ns, tilt)
 
     def add_odometry(self, stamp_ns: int, pose: PlanarPose, *, source: str | None = None) -> None:
         """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF).
@@ -665,15 +688,30 @@ class FusionStream(Generic[T]):
     def _on_ground(
         self, frame: DepthFrame, extrinsics: Extrinsics
     ) -> tuple[GroundPlane | None, Extrinsics]:
-        """The floor of `frame` (`ground.GroundTracker`, once per frame) and the mounting
-        moved onto it (for the memory's slab); None and the mounting when it is off."""
-        if self.ground is None or self.config.method is not Method.OBSTACLE:
+        """The floor of `frame` and the mounting moved onto it (for the memory's slab): the
+        mounting tilted by the IMU's pitch and roll at the frame's stamp (`imu`), then found
+        in the frame (`ground.GroundTracker`, once per frame); None and the mounting when
+        neither is on."""
+        if self.config.method is not Method.OBSTACLE:
             return None, extrinsics
-        prior = GroundPlane.of_mounting(extrinsics.base_to_camera_optical)
-        if frame.stamp_ns != self._ground_frame_ns or self.ground.estimate is None:
-            self.ground.update(frame.depth, frame.camera, prior)
-            self._ground_frame_ns = frame.stamp_ns
-        plane = self.ground.estimate or prior
+        tilt = self.imu.tilt_at(frame.stamp_ns)
+        if tilt is None and len(self.imu):
+            self.counts.imu_missed += 1
+            self._warn_once(
+                'imu', f'no IMU sample within 50 ms of a depth frame on {self.config.imu_topic}: '
+                'the mounting is used untilted until it comes back',
+            )  # fmt: skip
+        mounting = extrinsics.base_to_camera_optical
+        prior = GroundPlane.of_mounting(mounting if tilt is None else tilt @ mounting)
+        if self.ground is None:
+            if tilt is None:
+                return None, extrinsics
+            plane = prior
+        else:
+            if frame.stamp_ns != self._ground_frame_ns or self.ground.estimate is None:
+                self.ground.update(frame.depth, frame.camera, prior)
+                self._ground_frame_ns = frame.stamp_ns
+            plane = self.ground.estimate or prior
         on_ground = replace(
             extrinsics, base_to_camera_optical=plane.mounting(extrinsics.base_to_camera_optical)
         )

@@ -348,50 +348,76 @@ def ground_profile(
 
 @dataclass
 class GroundTracker:
-    """One camera's floor, frame by frame: `update` gives the plane to measure heights from."""
+    """One camera's floor, frame by frame: `update` gives the plane to measure heights from.
+
+    What is learnt and smoothed is the floor's offset from the prior (a turn of its normal
+    and a change of its height), not the plane itself: a prior that moves from frame to frame
+    (the mounting tilted by an IMU's pitch and roll) carries the learnt mounting error with
+    it, and the smoothing never lags behind the body's rocking.
+    """
 
     settings: GroundSettings
     counts: GroundCounts = field(default_factory=GroundCounts)
     _estimate: GroundPlane | None = None
-    _prior: GroundPlane | None = None
+    _correction: tuple[F64, float] | None = None  # rotation vector, offset change
     _sample: GroundSample | None = None
-    _sample_key: tuple[CameraModel, GroundPlane] | None = None
+    _sample_camera: CameraModel | None = None
     profile: GroundProfile | None = None  # the last frame's, where the ground is no plane
 
     @property
     def estimate(self) -> GroundPlane | None:
-        """The smoothed plane (None before the first frame)."""
+        """The last frame's smoothed plane (None before the first frame)."""
         return self._estimate
 
     def update(
         self, depth: npt.NDArray[np.generic], camera: CameraModel, prior: GroundPlane
     ) -> GroundPlane:
-        """The smoothed floor plane after this frame (the prior until floor is seen)."""
-        if (camera, prior) != self._sample_key:
+        """The smoothed floor plane of this frame (the prior until floor is seen)."""
+        if camera != self._sample_camera:
             self._sample = GroundSample.build(
                 camera, prior, self.settings.samples, self.settings.hypotheses
             )
-            self._sample_key = (camera, prior)
-            if self._prior != prior:
-                self._estimate = None  # a new mounting: what was learnt of the old is void
-            self._prior = prior
+            self._sample_camera = camera
         assert self._sample is not None
         camera.check_depth(depth)
         self.counts.frames += 1
-        start = self._estimate or prior
+        start = prior if self._correction is None else _corrected(prior, *self._correction)
         found, reason = fit_ground(depth, self._sample, prior, start, self.settings)
         if found is None:
             self.counts.fell_back += 1
             self.counts.last_reason = reason
-            self._estimate = start
-        elif self._estimate is None:
-            self.counts.estimated += 1
-            self._estimate = found
         else:
             self.counts.estimated += 1
-            weight = self.settings.smoothing
-            normal = (1.0 - weight) * self._estimate.vector + weight * found.vector
-            offset = (1.0 - weight) * self._estimate.offset + weight * found.offset
-            self._estimate = _plane(normal / np.linalg.norm(normal), offset)
+            turn, lift = _correction_between(prior, found)
+            if self._correction is not None:
+                weight = self.settings.smoothing
+                turn = (1.0 - weight) * self._correction[0] + weight * turn
+                lift = (1.0 - weight) * self._correction[1] + weight * lift
+            self._correction = (turn, lift)
+        self._estimate = prior if self._correction is None else _corrected(prior, *self._correction)
         self.profile = ground_profile(depth, camera, self._estimate, self.settings)
         return self._estimate
+
+
+def _correction_between(prior: GroundPlane, plane: GroundPlane) -> tuple[F64, float]:
+    """The rotation vector that turns the prior's normal onto the plane's (the least turn),
+    and the change of offset."""
+    axis = np.cross(prior.vector, plane.vector)
+    sine = float(np.linalg.norm(axis))
+    angle = math.atan2(sine, float(prior.vector @ plane.vector))
+    turn = axis * (angle / sine) if sine > 1e-15 else np.zeros(3)
+    return turn, plane.offset - prior.offset
+
+
+def _corrected(prior: GroundPlane, turn: F64, lift: float) -> GroundPlane:
+    """The prior turned by the rotation vector `turn` (Rodrigues) and lifted by `lift`."""
+    angle = float(np.linalg.norm(turn))
+    normal = prior.vector
+    if angle > 1e-15:
+        axis = turn / angle
+        normal = (
+            normal * math.cos(angle)
+            + np.cross(axis, normal) * math.sin(angle)
+            + axis * float(axis @ normal) * (1.0 - math.cos(angle))
+        )
+    return _plane(normal / np.linalg.norm(normal), prior.offset + lift)

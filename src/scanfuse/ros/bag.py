@@ -54,6 +54,7 @@ from scanfuse.progress import NullProgress, Progress
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
+    IMU,
     LASER_SCAN,
     ODOMETRY,
     POINT_CLOUD,
@@ -64,6 +65,7 @@ from scanfuse.ros.messages import (
     cloud_from_msg,
     depth_from_msg,
     deserialize,
+    imu_from_msg,
     is_depth_encoding,
     odometry_from_msg,
     scan_from_msg,
@@ -125,6 +127,7 @@ class TopicChoice:
     camera_info: str
     sources: tuple[tuple[str, str, str], ...] = ()  # (topic, source name, message type)
     unused: tuple[tuple[str, str], ...] = ()  # (topic, type) of sensors nobody named
+    imu: str = ''  # the sensor_msgs/Imu topic giving the base's tilt ('' none)
 
     def source_of(self, topic: str) -> tuple[str, str] | None:
         """(source name, type) of an extra source's topic."""
@@ -713,13 +716,32 @@ class _BagJob:
                 if t in sensor_types and name not in used and (t != IMAGE or name in depth_topics)
             )
         )
-        self.choice = TopicChoice(scan_topic, depth_topic, info_topic, sources, unused)
+        imu_topic = self._choose_imu()
+        self.choice = TopicChoice(scan_topic, depth_topic, info_topic, sources, unused, imu_topic)
         if unused:
             logger.info(
                 'also in the bag, not fused: %s (name them in lidars / cameras / clouds)',
                 describe_topics(dict(unused)),
             )
         return self.choice
+
+    def _choose_imu(self) -> str:
+        """`imu_topic` (which must be an Imu topic of the bag), else the bag's one Imu topic;
+        '' when it holds none, or several and none is named."""
+        imus = self._candidates(IMU)
+        requested = self.config.imu_topic
+        if requested:
+            if requested not in imus:
+                msg = f'imu_topic {requested} is not an Imu topic of the bag; Imu topics: '
+                raise BagError(msg + describe_topics(imus))
+            return requested
+        if len(imus) == 1:
+            (topic,) = imus
+            logger.info("the base's tilt from %s, the bag's one Imu topic", topic)
+            return topic
+        if imus:
+            logger.info('several Imu topics, none used: set imu_topic to one of %s', sorted(imus))
+        return ''
 
     def _named_sources(self) -> tuple[tuple[str, str, str], ...]:
         """Topics of the named sources beyond the primary pair; each must be in the bag."""
@@ -1002,6 +1024,9 @@ class _BagJob:
         elif topic == self.config.odom_topic and self.msgtype(connection) == ODOMETRY:
             sample = odometry_from_msg(deserialize(cdr, ODOMETRY, self.store))
             stream.add_odometry(sample.stamp_ns, sample.pose)
+        elif topic == self.choice.imu:
+            imu = imu_from_msg(deserialize(cdr, IMU, self.store))
+            stream.add_imu(imu.stamp_ns, imu.orientation, imu.frame_id)
         return stream.tick(log_time)
 
     def _feed_source(

@@ -25,6 +25,7 @@ from scanfuse.ros.messages import (
     check_depth_matches_camera,
     cloud_from_cdr,
     depth_from_cdr,
+    imu_from_cdr,
     odometry_from_cdr,
     scan_from_cdr,
     scan_to_cdr,
@@ -354,6 +355,14 @@ class LiveFusion:
             self.stream.note_malformed('odometry', err)
             return
         self.stream.add_odometry(sample.stamp_ns, sample.pose)
+
+    def on_imu(self, raw: RawMessage) -> None:
+        try:
+            sample = imu_from_cdr(raw, self.store)
+        except ScanfuseError as err:
+            self.stream.note_malformed('imu', err)
+            return
+        self.stream.add_imu(sample.stamp_ns, sample.orientation, sample.frame_id)
 
     def on_tick(self, now: float) -> list[Output]:
         """Scans whose wait for a newer frame is over."""

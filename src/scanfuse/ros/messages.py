@@ -37,6 +37,7 @@ CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 TF_MESSAGE = 'tf2_msgs/msg/TFMessage'
 TRANSFORM_STAMPED = 'geometry_msgs/msg/TransformStamped'
 ODOMETRY = 'nav_msgs/msg/Odometry'
+IMU = 'sensor_msgs/msg/Imu'
 NANOSECONDS = 1_000_000_000
 
 
@@ -427,6 +428,50 @@ def odometry_from_msg(message: Any) -> OdometrySample:
         frame_name(str(message.child_frame_id)),
         PlanarPose(values[0], values[1], yaw),
     )
+
+
+@dataclass(frozen=True)
+class ImuOrientation:
+    """A `sensor_msgs/Imu` reduced to what fusion needs: its frame's attitude (x, y, z, w).
+
+    The quaternion is passed on as it came: `FusionStream.add_imu` refuses (and counts) one
+    that is no unit quaternion, as REP-145's "no orientation" (all zero) is not.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    orientation: tuple[float, float, float, float]
+
+
+def imu_from_msg(message: Any) -> ImuOrientation:
+    q = message.orientation
+    return ImuOrientation(
+        stamp_to_ns(message.header.stamp),
+        frame_name(str(message.header.frame_id)),
+        (float(q.x), float(q.y), float(q.z), float(q.w)),
+    )
+
+
+def imu_from_cdr(raw: RawMessage, store: Typestore | None = None) -> ImuOrientation:
+    return imu_from_msg(deserialize(raw, IMU, store))
+
+
+def imu_to_cdr(sample: ImuOrientation, store: Typestore | None = None) -> bytes:
+    """A `sensor_msgs/Imu` with the orientation (rates, accelerations and covariances zero)."""
+    store = store or typestore()
+    types = store.types
+    vector = types['geometry_msgs/msg/Vector3']
+    x, y, z, w = sample.orientation
+    message = types[IMU](
+        header=_header(store, sample.stamp_ns, sample.frame_id),
+        orientation=types['geometry_msgs/msg/Quaternion'](x=x, y=y, z=z, w=w),
+        orientation_covariance=np.zeros(9, dtype=np.float64),
+        angular_velocity=vector(x=0.0, y=0.0, z=0.0),
+        angular_velocity_covariance=np.zeros(9, dtype=np.float64),
+        linear_acceleration=vector(x=0.0, y=0.0, z=0.0),
+        linear_acceleration_covariance=np.zeros(9, dtype=np.float64),
+    )
+    return serialize(message, IMU, store)
 
 
 def odometry_from_cdr(raw: RawMessage, store: Typestore | None = None) -> OdometrySample:

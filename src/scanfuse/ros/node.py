@@ -51,7 +51,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 from rclpy.utilities import ok, remove_ros_args
-from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, PointCloud2
 
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
 from scanfuse.errors import ScanfuseError
@@ -205,6 +205,10 @@ class ScanfuseNode:
         )
         self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
+        if config.imu_topic:
+            self.node.create_subscription(
+                Imu, config.imu_topic, self._on_imu, qos_profile_sensor_data, raw=True
+            )
         self.fused_pub = self._output_publisher(LaserScan, config.fused_topic)
         self.depth_pub = (
             self._output_publisher(LaserScan, config.depth_scan_topic)
@@ -353,6 +357,9 @@ class ScanfuseNode:
 
     def _on_odometry(self, raw: bytes) -> None:
         self._guard('odometry', lambda: self.live.on_odometry(raw))
+
+    def _on_imu(self, raw: bytes) -> None:
+        self._guard('imu', lambda: self.live.on_imu(raw))
 
     def _on_tf_static(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=True)

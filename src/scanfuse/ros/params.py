@@ -44,6 +44,7 @@ START_UP_ONLY = frozenset(
         'fused_topic',
         'depth_scan_topic',
         'odom_topic',
+        'imu_topic',
         'instant_topic',
         'memory_scan_topic',
         'publish_depth_scan',

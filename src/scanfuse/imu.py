@@ -1,0 +1,94 @@
+"""The body's tilt from an IMU: pitch and roll of the base between depth frames.
+
+A robot rocks faster than a camera's frames (braking, a caster over a sill); an IMU's
+orientation (sensor_msgs/Imu, REP-145: the IMU frame's attitude in a frame whose z is up
+against gravity) says how the base is tilted at a depth frame's stamp. The floor is then
+expected where the mounting, so tilted, puts it: the ground estimate's prior, or the
+ground itself with the estimate off. Yaw is not used (odometry has it).
+
+On a ramp an IMU gives the slope, not the floor under the wheels: the ground estimate
+(bounded near the tilted prior) finds the ramp's plane again.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanfuse.errors import InputError
+from scanfuse.transforms import Transform
+
+# Orientations whose quaternion's norm is this far from 1 are refused (a driver's float
+# rounding is far less; a zero quaternion is REP-145's "no orientation").
+QUATERNION_NORM_TOLERANCE = 0.05
+# Samples kept: 2 s of a 200 Hz IMU.
+MAX_SAMPLES = 400
+# The most an IMU sample may lie from a depth frame's stamp and still tell its tilt.
+MAX_AGE_NS = 50_000_000
+# Tilts beyond this are no floor a robot drives on: the orientation is refused.
+MAX_TILT = math.radians(45.0)
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    stamp_ns: int
+    tilt: Transform  # the base's roll and pitch against gravity, yaw 0
+
+
+def base_tilt(orientation: tuple[float, float, float, float], base_to_imu: Transform) -> Transform:
+    """The base's roll and pitch (a rotation, yaw 0) from the IMU frame's orientation
+    (x, y, z, w) and the IMU's mounting on the base; InputError for an unusable one."""
+    values = np.asarray(orientation, dtype=np.float64)
+    norm = float(np.linalg.norm(values)) if np.isfinite(values).all() else math.nan
+    if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+        msg = (
+            f'IMU orientation {tuple(orientation)} is not a unit quaternion (norm {norm:.3g}); '
+            'an IMU without orientation (REP-145: all zero, covariance[0] = -1) gives no tilt'
+        )
+        raise InputError(msg)
+    x, y, z, w = (float(v) for v in values / norm)
+    world_to_base = Transform(rotation=(x, y, z, w)) @ base_to_imu.inverse()
+    roll, pitch, _ = world_to_base.rpy()
+    if max(abs(roll), abs(pitch)) > MAX_TILT:
+        msg = (
+            f'IMU says the base is rolled {math.degrees(roll):.1f} deg and pitched '
+            f'{math.degrees(pitch):.1f} deg, beyond {math.degrees(MAX_TILT):.0f} deg: check '
+            "the IMU's frame and its mounting on the base"
+        )
+        raise InputError(msg)
+    return Transform.from_rpy(roll, pitch, 0.0)
+
+
+class ImuHistory:
+    """Recent tilts of the base, by stamp; `tilt_at` the nearest within `MAX_AGE_NS`."""
+
+    def __init__(self) -> None:
+        self._samples: deque[ImuSample] = deque(maxlen=MAX_SAMPLES)
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    def add(self, stamp_ns: int, tilt: Transform) -> None:
+        """A new tilt; one older than the newest is dropped (an IMU's stamps ascend)."""
+        if self._samples and stamp_ns < self._samples[-1].stamp_ns:
+            return
+        self._samples.append(ImuSample(stamp_ns, tilt))
+
+    def tilt_at(self, stamp_ns: int) -> Transform | None:
+        """The tilt of the sample nearest `stamp_ns`, None when none is within MAX_AGE_NS
+        (no IMU, or it stopped)."""
+        if not self._samples:
+            return None
+        stamps = [sample.stamp_ns for sample in self._samples]
+        index = bisect.bisect_left(stamps, stamp_ns)
+        nearest = min(
+            (i for i in (index - 1, index) if 0 <= i < len(stamps)),
+            key=lambda i: abs(stamps[i] - stamp_ns),
+        )
+        if abs(stamps[nearest] - stamp_ns) > MAX_AGE_NS:
+            return None
+        return self._samples[nearest].tilt
