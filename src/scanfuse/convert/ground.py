@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -346,6 +347,73 @@ def ground_profile(
     return GroundProfile(plane=plane, columns=columns, heights=heights, bin_size=PROFILE_BIN)
 
 
+# The mount check: over this many frames whose floor was found, a mean disagreement beyond
+# these between the floor and the mounting is reported.
+MOUNT_CHECK_FRAMES = 60
+MOUNT_CHECK_HEIGHT = 0.02  # metres
+MOUNT_CHECK_ANGLE = math.radians(1.0)
+
+
+@dataclass(frozen=True)
+class MountPose:
+    """A camera's height, pitch and roll above a plane (radians; `GroundPlane`'s reading)."""
+
+    height: float
+    pitch: float
+    roll: float
+
+    @classmethod
+    def above(cls, plane: GroundPlane) -> MountPose:
+        return cls(plane.offset, plane.camera_pitch, plane.camera_roll)
+
+    def describe(self) -> str:
+        return (
+            f'height {self.height:.3f} m, pitch {math.degrees(self.pitch):.2f} deg, '
+            f'roll {math.degrees(self.roll):.2f} deg'
+        )
+
+
+class MountCheck:
+    """Where the floor seen puts the camera, against where the mounting says it is, over
+    the last `MOUNT_CHECK_FRAMES` frames whose floor was found (`disagreement`)."""
+
+    def __init__(self) -> None:
+        self._pairs: deque[tuple[MountPose, MountPose]] = deque(maxlen=MOUNT_CHECK_FRAMES)
+
+    def add(self, found: GroundPlane, prior: GroundPlane) -> None:
+        self._pairs.append((MountPose.above(found), MountPose.above(prior)))
+
+    def means(self) -> tuple[MountPose, MountPose] | None:
+        """The mean pose the floor gives and the mount gives; None before any frame."""
+        if not self._pairs:
+            return None
+        found, prior = (
+            MountPose(*np.mean([(p.height, p.pitch, p.roll) for p in poses], axis=0).tolist())
+            for poses in zip(*self._pairs, strict=True)
+        )
+        return found, prior
+
+    def disagreement(self) -> str | None:
+        """A warning with both poses when, over MOUNT_CHECK_FRAMES frames, they disagree by
+        more than MOUNT_CHECK_HEIGHT or MOUNT_CHECK_ANGLE; None otherwise."""
+        means = self.means()
+        if means is None or len(self._pairs) < MOUNT_CHECK_FRAMES:
+            return None
+        found, prior = means
+        if (
+            abs(found.height - prior.height) <= MOUNT_CHECK_HEIGHT
+            and abs(found.pitch - prior.pitch) <= MOUNT_CHECK_ANGLE
+            and abs(found.roll - prior.roll) <= MOUNT_CHECK_ANGLE
+        ):
+            return None
+        return (
+            f'the floor puts the camera at {found.describe()}; its mounting says '
+            f'{prior.describe()} (means of the last {len(self._pairs)} frames): correct '
+            'camera_height / camera_pitch / camera_roll or the TF (scanfuse calibrate BAG '
+            'estimates them)'
+        )
+
+
 @dataclass
 class GroundTracker:
     """One camera's floor, frame by frame: `update` gives the plane to measure heights from.
@@ -363,6 +431,7 @@ class GroundTracker:
     _sample: GroundSample | None = None
     _sample_camera: CameraModel | None = None
     profile: GroundProfile | None = None  # the last frame's, where the ground is no plane
+    mount: MountCheck = field(default_factory=MountCheck)
 
     @property
     def estimate(self) -> GroundPlane | None:
@@ -388,6 +457,7 @@ class GroundTracker:
             self.counts.last_reason = reason
         else:
             self.counts.estimated += 1
+            self.mount.add(found, prior)
             turn, lift = _correction_between(prior, found)
             if self._correction is not None:
                 weight = self.settings.smoothing

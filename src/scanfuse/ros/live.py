@@ -69,6 +69,7 @@ class State(str, Enum):
     TOO_SLOW = 'processing too slow'
     MEMORY_DROPPED = 'obstacle memory dropped'
     SOURCE_MISSING = 'a named source contributes nothing'
+    MOUNT_MISMATCH = 'the floor disagrees with the camera mounting'
 
 
 @dataclass(frozen=True)
@@ -481,12 +482,31 @@ class LiveFusion:
             **{f'passed ({reason.value})': str(n) for reason, n in counts.passed.items()},
             **{f'malformed {kind}': str(count) for kind, count in sorted(counts.malformed.items())},
         }
+        values.update(self._ground_values())
         window.memory_drops = counts.memory_dropped - self._memory_drops_reported
         self._memory_drops_reported = counts.memory_dropped
         values.update(self._source_values(window))
         level, state, message = self._classify(now, camera_age, window)
         values['state'] = state.value
         return Health(level, state, message, values)
+
+    def _ground_values(self) -> dict[str, str]:
+        ground = self.stream.ground
+        if ground is None:
+            return {'ground estimate': 'off'}
+        counts = ground.counts
+        values = {
+            'ground estimate': (
+                f'{counts.estimated} frames estimated, {counts.fell_back} fell back'
+                + (f' (last: {counts.last_reason})' if counts.fell_back else '')
+            ),
+            'ground profile (ramps)': 'in view' if ground.profile is not None else 'none',
+        }
+        means = ground.mount.means()
+        if means is not None:
+            values['camera on the floor found'] = means[0].describe()
+            values['camera as mounted'] = means[1].describe()
+        return values
 
     def _classify(self, now: float, camera_age: float, window: _Window) -> tuple[Level, State, str]:
         """The first problem found, most severe first; OK when there is none."""
@@ -497,6 +517,7 @@ class LiveFusion:
             self._silence_problem(camera_age, window),
             self._usable_problem(window),
             self._memory_problem(window),
+            self._mount_problem(),
             self._sources_problem(window),
             self._speed_problem(window),
         )
@@ -606,6 +627,11 @@ class LiveFusion:
             'the camera view are forgotten'
         )
         return Level.WARN, State.MEMORY_DROPPED, message
+
+    def _mount_problem(self) -> Problem | None:
+        ground = self.stream.ground
+        message = None if ground is None else ground.mount.disagreement()
+        return None if message is None else (Level.WARN, State.MOUNT_MISMATCH, message)
 
     def _speed_problem(self, window: _Window) -> Problem | None:
         if not window.times or len(window.stamps) < 2:
