@@ -1,0 +1,639 @@
+"""Where the depth camera really sits: its mounting estimated from the floor and the LiDAR.
+
+`calibrate` takes depth frames, each paired with a LiDAR scan taken at about the same time,
+the LiDAR's mounting (trusted) and the camera's given mounting (a starting point, perhaps
+wrong), and estimates the camera body's pose in the base frame:
+
+1. **Height, pitch, roll from the floor.** In every frame `fit_ground` (the ground estimate
+   of the obstacle scan: RANSAC over pixels that look down, the lowest large surface wins,
+   least squares on its inliers) finds the floor, first with wide bounds around the given
+   mounting (`max_tilt`, `max_offset`), then again with tight bounds around the median of
+   the first pass. The median over frames of the floor's normal and offset (the camera's
+   height) gives roll, pitch and height; yaw and x, y leave the floor's plane unchanged,
+   so it cannot give them.
+2. **Yaw, x, y against the LiDAR.** The camera's points are placed in a level frame (the
+   camera body turned by the floor's roll and pitch, at the floor's height); those within
+   `band` of the LiDAR's height lie where the LiDAR's plane cuts walls and tall obstacles.
+   A 2D point-to-line ICP (the lines: the LiDAR's scan, locally fitted) finds the rotation
+   about z (yaw) and the shift (x, y) that lay them on that scan, from a few starting
+   yaws around the given one; only x, y, yaw are free. The walls must fix all three: if
+   the camera sees one straight wall only, the match could slide along it, and
+   `calibrate` says so instead of returning a guess.
+
+Arrays and frozen dataclasses in, a frozen `Calibration` out; no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from scanfuse.camera import depth_in_metres
+from scanfuse.convert.ground import GroundPlane, GroundSample, GroundSettings, fit_ground
+from scanfuse.errors import CalibrationError, InputError
+from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    import numpy.typing as npt
+
+    from scanfuse.camera import CameraModel
+    from scanfuse.scan import Scan
+
+    F64 = npt.NDArray[np.float64]
+
+# Rotation by +90 deg in the plane: d(R(yaw) p)/d(yaw) = J R(yaw) p.
+_J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class Mounting:
+    """The camera body's pose in the base frame (REP-103): metres and radians, as the
+    `camera_*` parameters and `Extrinsics.from_mounting` take them (R = Rz(yaw) Ry(pitch)
+    Rx(roll); positive pitch looks down, positive yaw looks left)."""
+
+    x: float
+    y: float
+    height: float
+    roll: float
+    pitch: float
+    yaw: float
+
+    @classmethod
+    def of_optical(cls, base_to_camera_optical: Transform) -> Mounting:
+        """The body pose whose optical frame is `base_to_camera_optical`."""
+        body = base_to_camera_optical @ BODY_TO_OPTICAL.inverse()
+        roll, pitch, yaw = body.rpy()
+        x, y, z = body.translation
+        return cls(x, y, z, roll, pitch, yaw)
+
+    @property
+    def body(self) -> Transform:
+        """base -> camera body."""
+        return Transform.from_rpy(self.roll, self.pitch, self.yaw, (self.x, self.y, self.height))
+
+    @property
+    def optical(self) -> Transform:
+        """base -> camera optical frame."""
+        return self.body @ BODY_TO_OPTICAL
+
+    def parameters(self) -> dict[str, float]:
+        """The `camera_*` parameters of this mounting."""
+        return {
+            'camera_x': self.x,
+            'camera_y': self.y,
+            'camera_height': self.height,
+            'camera_roll': self.roll,
+            'camera_pitch': self.pitch,
+            'camera_yaw': self.yaw,
+        }
+
+    def parameters_yaml(self) -> str:
+        """A parameter file snippet (`scanfuse: ros__parameters:`), radians and metres."""
+        lines = ['scanfuse:', '  ros__parameters:']
+        lines += [f'    {name}: {value:.4f}' for name, value in self.parameters().items()]
+        return '\n'.join(lines) + '\n'
+
+    def static_transform_command(self, parent: str, child: str) -> str:
+        """The `static_transform_publisher` line that publishes this body pose (parent ->
+        child, child the camera's body frame: x forward, y left, z up)."""
+        return (
+            'ros2 run tf2_ros static_transform_publisher '
+            f'--x {self.x:.4f} --y {self.y:.4f} --z {self.height:.4f} '
+            f'--roll {self.roll:.5f} --pitch {self.pitch:.5f} --yaw {self.yaw:.5f} '
+            f'--frame-id {parent} --child-frame-id {child}'
+        )
+
+
+def body_to_optical_command(body: str, optical: str) -> str:
+    """The fixed turn from a camera body frame to its optical frame (setRPY(-pi/2, 0, -pi/2))."""
+    return (
+        'ros2 run tf2_ros static_transform_publisher --roll -1.5707963 --yaw -1.5707963 '
+        f'--frame-id {body} --child-frame-id {optical}'
+    )
+
+
+@dataclass(frozen=True)
+class CalibrationFrame:
+    """One depth image and the LiDAR scan taken with it (in the LiDAR's frame)."""
+
+    depth: npt.NDArray[np.generic]
+    scan: Scan
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """How `calibrate` finds the floor and matches the camera to the LiDAR."""
+
+    max_tilt: float = math.radians(15.0)  # first floor pass: radians from the given mounting
+    max_offset: float = 0.25  # first floor pass: metres of height from the given mounting
+    refine_tilt: float = math.radians(2.0)  # second pass: radians from the first's median
+    refine_offset: float = 0.03  # second pass: metres from the first's median
+    reach: float = 3.0  # metres: floor farther from the camera is not used
+    depth_noise: float = 0.005  # sigma of depth = depth_noise * Z^2 (1/m): the weights
+    floor_window: float = 0.03  # metres either side of the floor: the refinement's points
+    min_floor_frames: int = 3  # frames that must show floor
+    band: float = 0.05  # metres above and below the LiDAR's plane: camera points matched
+    max_yaw_error: float = math.radians(12.0)  # starts of the match: given yaw +- this
+    start_distance: float = 0.5  # metres: pairs farther apart are not matched at first
+    inlier_distance: float = 0.03  # metres: pairs within it count as matched in the end
+    match_frames: int = 10  # frames (spread over the recording) the scan match uses
+    grid: float = 0.02  # metres: camera points are thinned to one per cell this size
+    min_matched: int = 60  # matched camera points needed
+    min_constraint: float = 0.04  # least eigenvalue share of the match's information
+
+    def __post_init__(self) -> None:
+        checks = (
+            ('max_tilt', 0.0 < self.max_tilt < math.pi / 4),
+            ('max_offset', 0.0 < self.max_offset <= 1.0),
+            ('refine_tilt', 0.0 < self.refine_tilt < math.pi / 4),
+            ('refine_offset', 0.0 < self.refine_offset <= 1.0),
+            ('reach', self.reach > 0.0),
+            ('depth_noise', self.depth_noise >= 0.0),
+            ('floor_window', self.floor_window > 0.0),
+            ('min_floor_frames', self.min_floor_frames >= 1),
+            ('band', self.band > 0.0),
+            ('max_yaw_error', 0.0 <= self.max_yaw_error <= math.pi),
+            ('start_distance', self.start_distance > 0.0),
+            ('inlier_distance', 0.0 < self.inlier_distance <= self.start_distance),
+            ('match_frames', self.match_frames >= 1),
+            ('grid', self.grid > 0.0),
+            ('min_matched', self.min_matched >= 3),
+            ('min_constraint', 0.0 <= self.min_constraint < 1.0),
+        )
+        for name, valid in checks:
+            value = getattr(self, name)
+            if not (valid and math.isfinite(value)):
+                msg = f'calibration setting {name} = {value} is out of its range'
+                raise InputError(msg)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The estimated mounting, the given one, and how well the data agree with each.
+
+    The points are top views in the base frame, metres: the LiDAR's (of the frames the scan
+    match used) and the camera's within the LiDAR's band, placed with the given mounting
+    (`camera_given`) and with the estimate (`camera_points`).
+    """
+
+    mounting: Mounting
+    given: Mounting
+    frames: int  # depth frames handed in
+    floor_frames: int  # frames that showed floor
+    floor_rms: float  # metres: floor points from the estimated floor (within 3 cm of it)
+    match_frames: int  # frames the scan match used
+    matched_points: int  # camera points within `inlier_distance` of the LiDAR's lines
+    match_rms: float  # metres: point-to-line distance of the matched points, estimate
+    match_rms_given: float  # the same with the given mounting (NaN: nothing matched)
+    matched_given: int  # camera points on the LiDAR's lines with the given mounting
+    camera_count: int  # camera points in the LiDAR's band (the scan match's frames)
+    lidar_points: F64
+    camera_points: F64
+    camera_given: F64
+
+    @property
+    def corrections(self) -> Mounting:
+        """Estimate minus given, per parameter (angles wrapped to [-pi, pi])."""
+        m, g = self.mounting, self.given
+        return Mounting(
+            m.x - g.x,
+            m.y - g.y,
+            m.height - g.height,
+            _wrap(m.roll - g.roll),
+            _wrap(m.pitch - g.pitch),
+            _wrap(m.yaw - g.yaw),
+        )
+
+
+def _wrap(angle: float) -> float:
+    return math.remainder(angle, 2.0 * math.pi)
+
+
+def calibrate(
+    frames: Sequence[CalibrationFrame],
+    camera: CameraModel,
+    base_to_laser: Transform,
+    given: Mounting,
+    settings: CalibrationSettings | None = None,
+) -> Calibration:
+    """The camera's mounting from depth frames paired with LiDAR scans (module docstring)."""
+    settings = settings or CalibrationSettings()
+    if not frames:
+        msg = 'no depth frames paired with LiDAR scans to calibrate from; record both together'
+        raise CalibrationError(msg)
+    for frame in frames:
+        camera.check_depth(frame.depth)
+    floor, floor_frames = _floor(frames, camera, given, settings)
+    roll, pitch = floor.camera_roll, floor.camera_pitch
+    level = Transform.from_rpy(roll, pitch, 0.0, (0.0, 0.0, floor.offset)) @ BODY_TO_OPTICAL
+    chosen = _spread(len(frames), settings.match_frames)
+    lidar_height = float(base_to_laser.translation[2])
+    clouds = [_band_points(frames[i].depth, camera, level, lidar_height, settings) for i in chosen]
+    scans = [_scan_lines(frames[i].scan, base_to_laser) for i in chosen]
+    matcher = _Matcher(clouds, scans, settings)
+    if sum(len(c) for c in clouds) < settings.min_matched:
+        msg = (
+            f'the camera sees only {sum(len(c) for c in clouds)} points within '
+            f'{settings.band} m of the LiDAR plane (height {lidar_height:.2f} m) in '
+            f'{len(chosen)} frames, fewer than {settings.min_matched}: yaw and x, y need walls '
+            'or tall obstacles that both sensors see; record facing a corner of a room'
+        )
+        raise CalibrationError(msg)
+    yaw, shift = matcher.coarse().best_start(given.yaw, (given.x, given.y))
+    yaw, shift, _ = matcher.refine(yaw, shift, 4.0 * settings.inlier_distance)
+    pairs = matcher.pairs(yaw, shift, settings.inlier_distance)
+    matcher.check_constraints(pairs)
+    mounting = Mounting(float(shift[0]), float(shift[1]), floor.offset, roll, pitch, yaw)
+    given_cloud = [
+        _band_points(frames[i].depth, camera, _level_of(given), lidar_height, settings)
+        for i in chosen
+    ]
+    given_pairs = _Matcher(given_cloud, scans, settings).pairs(
+        given.yaw, np.array([given.x, given.y]), settings.inlier_distance
+    )
+    return Calibration(
+        mounting=mounting,
+        given=given,
+        frames=len(frames),
+        floor_frames=floor_frames,
+        floor_rms=_floor_rms(frames, camera, floor, settings),
+        match_frames=len(chosen),
+        matched_points=pairs.count,
+        match_rms=pairs.rms,
+        match_rms_given=given_pairs.rms,
+        matched_given=given_pairs.count,
+        camera_count=sum(len(c) for c in matcher.clouds),
+        lidar_points=np.concatenate([s.points for s in scans]),
+        camera_points=_placed(clouds, yaw, shift),
+        camera_given=_placed(given_cloud, given.yaw, np.array([given.x, given.y])),
+    )
+
+
+# ------------------------------------------------------------------ floor
+
+
+def _floor(
+    frames: Sequence[CalibrationFrame],
+    camera: CameraModel,
+    given: Mounting,
+    settings: CalibrationSettings,
+) -> tuple[GroundPlane, int]:
+    """The median floor of two passes: wide bounds around `given`, then tight ones."""
+    prior = GroundPlane.of_mounting(given.optical)
+    wide = GroundSettings(
+        max_tilt=settings.max_tilt,
+        max_offset=settings.max_offset,
+        reach=settings.reach,
+        smoothing=1.0,
+        hypotheses=80,
+    )
+    planes, reasons = _planes(frames, camera, prior, wide)
+    if len(planes) < settings.min_floor_frames:
+        _too_little_floor(len(planes), len(frames), reasons, settings)
+    first = _median_plane(planes)
+    tight = GroundSettings(
+        max_tilt=settings.refine_tilt,
+        max_offset=settings.refine_offset,
+        reach=settings.reach,
+        smoothing=1.0,
+    )
+    planes, reasons = _planes(frames, camera, first, tight)
+    if len(planes) < settings.min_floor_frames:
+        _too_little_floor(len(planes), len(frames), reasons, settings)
+    return _refine_floor(frames, camera, _median_plane(planes), settings), len(planes)
+
+
+def _refine_floor(
+    frames: Sequence[CalibrationFrame],
+    camera: CameraModel,
+    plane: GroundPlane,
+    settings: CalibrationSettings,
+) -> GroundPlane:
+    """Weighted least squares over every pixel near `plane` in the frames the scan match
+    uses: heights h = a + b u + c v along two axes of the plane, weight 1 / sigma^2 with
+    sigma = 2 mm + `depth_noise` Z^2, window 2.5 sigma (at most `floor_window`) either side.
+
+    The per-frame fit keeps inliers asymmetric (the floor is the lowest surface), which
+    costs a few tenths of a degree on a noisy far floor; with the median plane as the
+    start a symmetric window is safe, and unbiased."""
+    clouds = [
+        _optical_points(frames[i].depth, camera)
+        for i in _spread(len(frames), settings.match_frames)
+    ]
+    points = np.concatenate(clouds)
+    points = points[np.linalg.norm(points, axis=1) <= settings.reach]
+    sigma = 0.002 + settings.depth_noise * points[:, 2] ** 2
+    window = np.minimum(2.5 * sigma, settings.floor_window)
+    normal, offset = plane.vector, plane.offset
+    for _ in range(4):
+        helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        first = np.cross(normal, helper)
+        first /= np.linalg.norm(first)
+        second = np.cross(normal, first)
+        heights = points @ normal + offset
+        near = np.abs(heights) <= window
+        if near.sum() < 3:
+            break
+        weight = 1.0 / sigma[near] ** 2
+        design = np.column_stack(
+            [np.ones(int(near.sum())), points[near] @ first, points[near] @ second]
+        )
+        a = design * weight[:, None]
+        solution = np.linalg.solve(a.T @ design, a.T @ heights[near])
+        # h' = h - (a + b u + c v): the new plane's normal and offset, normalised.
+        raw = normal - solution[1] * first - solution[2] * second
+        length = float(np.linalg.norm(raw))
+        normal, offset = raw / length, (offset - solution[0]) / length
+    return GroundPlane((float(normal[0]), float(normal[1]), float(normal[2])), float(offset))
+
+
+def _planes(
+    frames: Sequence[CalibrationFrame],
+    camera: CameraModel,
+    prior: GroundPlane,
+    ground: GroundSettings,
+) -> tuple[list[GroundPlane], list[str]]:
+    sample = GroundSample.build(camera, prior, ground.samples, ground.hypotheses)
+    planes, reasons = [], []
+    for frame in frames:
+        plane, reason = fit_ground(frame.depth, sample, prior, prior, ground)
+        if plane is None:
+            reasons.append(reason)
+        else:
+            planes.append(plane)
+    return planes, reasons
+
+
+def _too_little_floor(
+    found: int, frames: int, reasons: list[str], settings: CalibrationSettings
+) -> None:
+    why = f' (last: {reasons[-1]})' if reasons else ''
+    msg = (
+        f'too little floor: {found} of {frames} depth frames show floor within '
+        f'{math.degrees(settings.max_tilt):.0f} deg and {settings.max_offset} m of the given '
+        f'mounting{why}, {settings.min_floor_frames} needed; record with open floor in front '
+        'of the camera, and give a mounting (--params or /tf_static) within those bounds'
+    )
+    raise CalibrationError(msg)
+
+
+def _median_plane(planes: list[GroundPlane]) -> GroundPlane:
+    normals = np.array([p.normal for p in planes])
+    normal = np.median(normals, axis=0)
+    normal /= np.linalg.norm(normal)
+    offset = float(np.median([p.offset for p in planes]))
+    return GroundPlane((float(normal[0]), float(normal[1]), float(normal[2])), offset)
+
+
+def _optical_points(depth: npt.NDArray[np.generic], camera: CameraModel) -> F64:
+    """Every valid pixel back-projected into the optical frame, (N, 3)."""
+    z = depth_in_metres(depth).astype(np.float64).ravel()
+    x_n, y_n = camera.normalized_coordinates
+    points = np.stack([x_n.ravel() * z, y_n.ravel() * z, z], axis=1)
+    with np.errstate(invalid='ignore'):
+        valid = np.isfinite(points).all(axis=1) & (z > 0.0)
+    return points[valid]
+
+
+def _floor_rms(
+    frames: Sequence[CalibrationFrame],
+    camera: CameraModel,
+    floor: GroundPlane,
+    settings: CalibrationSettings,
+) -> float:
+    """RMS height above `floor` of the points near it (within 3 cm, within reach)."""
+    squares, count = 0.0, 0
+    for i in _spread(len(frames), settings.match_frames):
+        points = _optical_points(frames[i].depth, camera)
+        heights = points @ floor.vector + floor.offset
+        near = (np.abs(heights) <= 0.03) & (np.linalg.norm(points, axis=1) <= settings.reach)
+        squares += float(np.sum(heights[near] ** 2))
+        count += int(near.sum())
+    return math.sqrt(squares / count) if count else math.nan
+
+
+# ------------------------------------------------------------------ scan match
+
+
+def _spread(count: int, wanted: int) -> list[int]:
+    """Up to `wanted` indices spread evenly over range(count)."""
+    if count <= wanted:
+        return list(range(count))
+    return (
+        sorted({round(i * (count - 1) / (wanted - 1)) for i in range(wanted)})
+        if wanted > 1
+        else [0]
+    )
+
+
+def _level_of(mounting: Mounting) -> Transform:
+    """The level frame (yaw 0, at x = y = 0) of a mounting -> its optical frame."""
+    body = Transform.from_rpy(mounting.roll, mounting.pitch, 0.0, (0.0, 0.0, mounting.height))
+    return body @ BODY_TO_OPTICAL
+
+
+def _band_points(
+    depth: npt.NDArray[np.generic],
+    camera: CameraModel,
+    level_to_optical: Transform,
+    lidar_height: float,
+    settings: CalibrationSettings,
+) -> F64:
+    """The camera's points within `band` of the LiDAR's height, x, y in the level frame,
+    thinned to one per `grid` cell."""
+    points = level_to_optical.apply(_optical_points(depth, camera))
+    near = np.abs(points[:, 2] - lidar_height) <= settings.band
+    flat = points[near, :2]
+    if not flat.size:
+        return np.empty((0, 2))
+    cells = np.floor(flat / settings.grid).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    return flat[np.sort(first)]
+
+
+@dataclass(frozen=True)
+class _Lines:
+    """A LiDAR scan in the base frame: its points and the unit normals of the lines through
+    each point and its neighbours (NaN where the neighbourhood is no line)."""
+
+    points: F64
+    normals: F64
+
+
+def _scan_lines(scan: Scan, base_to_laser: Transform) -> _Lines:
+    ranges = scan.ranges.astype(np.float64)
+    angles = scan.angles()
+    with np.errstate(invalid='ignore'):
+        valid = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+    ranges, angles = ranges[valid], angles[valid]
+    local = np.stack([ranges * np.cos(angles), ranges * np.sin(angles), np.zeros(ranges.size)])
+    points = base_to_laser.apply(local.T)[:, :2]
+    normals = np.full_like(points, np.nan)
+    count = points.shape[0]
+    for i in range(count):
+        window = points[max(0, i - 2) : i + 3]
+        near = window[np.linalg.norm(window - points[i], axis=1) <= 0.15]
+        if near.shape[0] < 3:
+            continue
+        centred = near - near.mean(axis=0)
+        _, values, vt = np.linalg.svd(centred, full_matrices=False)
+        if values[1] > 0.2 * values[0]:
+            continue  # a corner or scattered points: no line
+        normals[i] = vt[1]
+    return _Lines(points, normals)
+
+
+@dataclass(frozen=True)
+class _Pairs:
+    """Matched camera points: their rows of the linearised problem and residuals."""
+
+    rows: F64  # (N, 3): d(residual)/d(x, y, yaw)
+    residuals: F64
+
+    @property
+    def count(self) -> int:
+        return int(self.residuals.size)
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals**2))) if self.count else math.nan
+
+
+def _rotation(yaw: float) -> F64:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+def _placed(clouds: list[F64], yaw: float, shift: F64) -> F64:
+    if not clouds:
+        return np.empty((0, 2))
+    placed: F64 = np.concatenate(clouds) @ _rotation(yaw).T + shift
+    return placed
+
+
+class _Matcher:
+    """Point-to-line ICP of camera clouds (level frame) onto LiDAR lines (base frame)."""
+
+    def __init__(
+        self,
+        clouds: list[F64],
+        scans: list[_Lines],
+        settings: CalibrationSettings,
+        most: int = 1000,
+    ) -> None:
+        rng = np.random.default_rng(0)
+        self.clouds = [
+            c if len(c) <= most else c[np.sort(rng.choice(len(c), most, replace=False))]
+            for c in clouds
+        ]
+        # Only points on a line can be matched; the others would only slow the search.
+        lined = [np.isfinite(s.normals).all(axis=1) for s in scans]
+        self.scans = [_Lines(s.points[k], s.normals[k]) for s, k in zip(scans, lined, strict=True)]
+        self.settings = settings
+
+    def coarse(self, frames: int = 2, most: int = 250) -> _Matcher:
+        """The same match on fewer frames and points: to try several starts quickly."""
+        chosen = _spread(len(self.clouds), frames)
+        clouds = [self.clouds[i] for i in chosen]
+        return _Matcher(clouds, [self.scans[i] for i in chosen], self.settings, most)
+
+    def pairs(self, yaw: float, shift: F64, distance: float) -> _Pairs:
+        """Each camera point, placed by (yaw, shift), with its nearest LiDAR point within
+        `distance` that has a line."""
+        rotation = _rotation(yaw)
+        rows, residuals = [], []
+        for cloud, scan in zip(self.clouds, self.scans, strict=True):
+            if not cloud.size or not scan.points.size:
+                continue
+            turned = cloud @ rotation.T
+            placed = turned + shift
+            squared = (
+                np.sum(placed**2, axis=1)[:, None]
+                + np.sum(scan.points**2, axis=1)[None, :]
+                - 2.0 * placed @ scan.points.T
+            )
+            nearest = np.argmin(squared, axis=1)
+            gap = placed - scan.points[nearest]
+            normal = scan.normals[nearest]
+            keep = (np.linalg.norm(gap, axis=1) <= distance) & np.isfinite(normal).all(axis=1)
+            normal, gap, turned = normal[keep], gap[keep], turned[keep]
+            residuals.append(np.einsum('ij,ij->i', normal, gap))
+            rows.append(np.column_stack([normal, np.einsum('ij,ij->i', normal, turned @ _J.T)]))
+        if not rows:
+            return _Pairs(np.empty((0, 3)), np.empty(0))
+        return _Pairs(np.concatenate(rows), np.concatenate(residuals))
+
+    def refine(self, yaw: float, shift: F64, distance: float) -> tuple[float, F64, int]:
+        """ICP from (yaw, shift): the pair distance shrinks from `distance` to
+        `inlier_distance`; returns the pose and the matched count at the end."""
+        settings = self.settings
+        for _ in range(60):
+            pairs = self.pairs(yaw, shift, distance)
+            if pairs.count < 3:
+                return yaw, shift, 0
+            scale = max(0.01, 1.4826 * float(np.median(np.abs(pairs.residuals))))
+            weights = 1.0 / np.maximum(1.0, np.abs(pairs.residuals) / scale)  # Huber
+            a = pairs.rows * weights[:, None]
+            step = np.linalg.lstsq(a.T @ pairs.rows, -(a.T @ pairs.residuals), rcond=None)[0]
+            shift = shift + step[:2]
+            yaw += float(step[2])
+            small = abs(step[2]) < 1e-5 and float(np.hypot(step[0], step[1])) < 1e-4
+            if small:
+                if distance <= settings.inlier_distance:
+                    break
+                distance = max(settings.inlier_distance, distance / 2.0)
+        return _wrap(yaw), shift, self.pairs(yaw, shift, settings.inlier_distance).count
+
+    def best_start(self, yaw: float, shift: tuple[float, float]) -> tuple[float, F64]:
+        """The ICP result that matches the most points, of starts around the given yaw."""
+        limit = self.settings.max_yaw_error
+        steps = max(0, math.ceil(limit / math.radians(4.0)))
+        offsets = [0.0] + [
+            sign * limit * k / steps for k in range(1, steps + 1) for sign in (1, -1)
+        ]
+        best: tuple[int, float, F64] | None = None
+        for offset in offsets:
+            start = np.array(shift, dtype=float)
+            found_yaw, found_shift, count = self.refine(
+                yaw + offset, start, self.settings.start_distance
+            )
+            if best is None or count > best[0]:
+                best = (count, found_yaw, found_shift)
+        assert best is not None
+        if best[0] < self.settings.min_matched:
+            msg = (
+                f'only {best[0]} camera points lie on what the LiDAR sees (within '
+                f'{self.settings.inlier_distance} m), fewer than {self.settings.min_matched}: '
+                'the camera and the LiDAR must see the same walls or tall obstacles; '
+                'record facing a corner of a room, and give camera_yaw within '
+                f'{math.degrees(limit):.0f} deg'
+            )
+            raise CalibrationError(msg)
+        return best[1], best[2]
+
+    def check_constraints(self, pairs: _Pairs) -> None:
+        """Refuse when the matched walls leave a direction of (x, y, yaw) nearly free."""
+        rows = pairs.rows.copy()
+        lever = 1.0  # metres: yaw is weighed as the shift it makes 1 m from the camera
+        rows[:, 2] /= lever
+        information = rows.T @ rows / max(1, pairs.count)
+        values, vectors = np.linalg.eigh(information)
+        if values[0] >= self.settings.min_constraint * max(float(values[-1]), 1e-12):
+            return
+        weak = vectors[:, 0]
+        if abs(weak[2]) > math.hypot(weak[0], weak[1]):
+            what = 'walls too few to fix yaw'
+        else:
+            angle = math.degrees(math.atan2(weak[1], weak[0]))
+            what = f'walls too few to fix x, y: the match can slide along {angle:.0f} deg'
+        msg = (
+            f'{what} (the camera and the LiDAR see {pairs.count} common points, nearly all on '
+            'parallel lines); record facing a corner of a room, or put a box taller than '
+            'the LiDAR plane in view of both'
+        )
+        raise CalibrationError(msg)
