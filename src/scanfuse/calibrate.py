@@ -629,8 +629,11 @@ class _Matcher:
         if abs(weak[2]) > math.hypot(weak[0], weak[1]):
             what = 'walls too few to fix yaw'
         else:
-            angle = math.degrees(math.atan2(weak[1], weak[0]))
-            what = f'walls too few to fix x, y: the match can slide along {angle:.0f} deg'
+            angle = math.degrees(math.atan2(weak[1], weak[0])) % 180.0
+            what = (
+                f'walls too few to fix x, y: the match can slide along {angle:.0f} deg '
+                '(from the base frame x axis)'
+            )
         msg = (
             f'{what} (the camera and the LiDAR see {pairs.count} common points, nearly all on '
             'parallel lines); record facing a corner of a room, or put a box taller than '
