@@ -6,6 +6,7 @@ from scanfuse.camera import CameraModel, decode_depth
 from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import (
     BagError,
+    CalibrationError,
     ConfigError,
     DepthEncodingError,
     InputError,
@@ -21,6 +22,7 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 __all__ = [
     'AngleGrid',
     'BagError',
+    'CalibrationError',
     'CameraModel',
     'ConfigError',
     'DepthEncodingError',

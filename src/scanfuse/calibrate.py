@@ -473,18 +473,22 @@ def _scan_lines(scan: Scan, base_to_laser: Transform) -> _Lines:
     ranges, angles = ranges[valid], angles[valid]
     local = np.stack([ranges * np.cos(angles), ranges * np.sin(angles), np.zeros(ranges.size)])
     points = base_to_laser.apply(local.T)[:, :2]
-    normals = np.full_like(points, np.nan)
+    # The line through each reading and its neighbours (two each side, within 15 cm):
+    # the scatter's eigenvector of the smaller eigenvalue; none where it is no line.
     count = points.shape[0]
-    for i in range(count):
-        window = points[max(0, i - 2) : i + 3]
-        near = window[np.linalg.norm(window - points[i], axis=1) <= 0.15]
-        if near.shape[0] < 3:
-            continue
-        centred = near - near.mean(axis=0)
-        _, values, vt = np.linalg.svd(centred, full_matrices=False)
-        if values[1] > 0.2 * values[0]:
-            continue  # a corner or scattered points: no line
-        normals[i] = vt[1]
+    index = np.arange(count)[:, None] + np.arange(-2, 3)[None, :]
+    inside = (index >= 0) & (index < count)
+    window = points[np.clip(index, 0, max(count - 1, 0))]
+    near = inside & (np.linalg.norm(window - points[:, None, :], axis=2) <= 0.15)
+    weight = near.astype(np.float64)[:, :, None]
+    members = np.maximum(near.sum(axis=1), 1)[:, None]
+    mean = (window * weight).sum(axis=1) / members
+    centred = (window - mean[:, None, :]) * weight
+    scatter = np.einsum('nki,nkj->nij', centred, centred)
+    values, vectors = np.linalg.eigh(scatter)
+    normals = vectors[:, :, 0]
+    line = (near.sum(axis=1) >= 3) & (values[:, 0] <= 0.04 * values[:, 1])
+    normals[~line] = np.nan
     return _Lines(points, normals)
 
 

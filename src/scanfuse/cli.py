@@ -161,7 +161,8 @@ def calibrate(
     )
     written = save_calibration(found, out)
     output = Console()
-    output.print(found.table())
+    for table in found.tables():
+        output.print(table)
     typer.echo(found.parameters_yaml(), nl=False)
     for line in found.commands():
         typer.echo(line)

@@ -79,17 +79,13 @@ class BagCalibration:
             lines.append(body_to_optical_command(self.body_frame, self.optical_frame))
         return lines
 
-    def table(self) -> Table:
-        """Given, estimated and their difference per parameter, then the residuals."""
+    def tables(self) -> tuple[Table, Table]:
+        """Given, estimated and their difference per parameter; then the residuals."""
         result = self.calibration
         table = Table(title=f'scanfuse calibrate: {self.bag}')
-        for name, justify in (
-            ('parameter', 'left'),
-            ('given', 'right'),
-            ('estimated', 'right'),
-            ('change', 'right'),
-        ):
-            table.add_column(name, justify=justify)  # type: ignore[arg-type]
+        table.add_column('parameter')
+        for name in ('given', 'estimated', 'change'):
+            table.add_column(name, justify='right')
         given, found, change = result.given, result.mounting, result.corrections
         for name in ('x', 'y', 'height'):
             values = (getattr(given, name), getattr(found, name), getattr(change, name))
@@ -97,6 +93,9 @@ class BagCalibration:
         for name in ('roll', 'pitch', 'yaw'):
             values = (getattr(given, name), getattr(found, name), getattr(change, name))
             table.add_row(f'camera_{name} (deg)', *(f'{math.degrees(v):+.2f}' for v in values))
+        residuals = Table(show_header=False)
+        residuals.add_column('what')
+        residuals.add_column('value', justify='right')
         rows = (
             ('given mounting from', self.given_source),
             ('LiDAR mounting from', self.lidar_source),
@@ -113,8 +112,8 @@ class BagCalibration:
             ),
         )
         for name, value in rows:
-            table.add_row(name, '', value, '')
-        return table
+            residuals.add_row(name, value)
+        return table, residuals
 
     def summary(self) -> dict[str, object]:
         """The numbers, JSON-ready (metres and radians)."""
