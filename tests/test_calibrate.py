@@ -25,7 +25,7 @@ from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, CalibrationError
 from scanfuse.ros.calibration import calibrate_bag
 from scanfuse.transforms import Extrinsics, Transform
-from tests.support.calibration import LIDAR, PILLAR, ROOM, WALL, Room, room_messages
+from tests.support.calibration import LIDAR, LOW_BOX, PILLAR, ROOM, WALL, Room, room_messages
 from tests.support.synthetic import write_bag
 
 if TYPE_CHECKING:
@@ -122,6 +122,11 @@ def test_calibrate_recovers_the_true_mounting_within_the_done_when_tolerances(ca
         dict.fromkeys(errors(true, true), 0.0), abs=1e-9
     )
     assert found.given_source.startswith('TF' if through_tf else 'the camera_* parameters')
+    # The TF tree's body frame (camera_link) when the bag has one, else a name and the turn.
+    assert (found.body_frame, found.body_in_tf) == (
+        ('camera_link', True) if through_tf else ('camera_depth_frame', False)
+    )
+    assert len(found.commands()) == (1 if through_tf else 2)
     assert found.lidar_source.startswith('TF')
     assert_within_done_when(result.mounting, true)
     # The given mounting was off by more than the tolerances somewhere; the estimate is not.
@@ -241,3 +246,26 @@ def test_one_straight_wall_cannot_fix_x_and_y(tmp_path):
     with pytest.raises(CalibrationError, match=slides):
         calibrate_bag(bag, config=config_of(NOMINAL))
     assert PILLAR[4] < LIDAR.height < PILLAR[5]  # the room's pillar would have fixed it
+
+
+@pytest.mark.parametrize('storage', ['sqlite3', 'ros1'])
+def test_sqlite3_and_ros1_bags_calibrate_as_mcap_does(storage, tmp_path):
+    true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
+    path = tmp_path / ('room.bag' if storage == 'ros1' else 'room')
+    bag = write_bag(path, room_messages(Room(true)), storage=storage)
+    found = calibrate_bag(bag, config=config_of(NOMINAL))
+    assert_within_done_when(found.calibration.mounting, true)
+
+
+def test_nothing_at_the_lidars_height_in_view_is_refused(tmp_path):
+    """Only a 10 cm box: the floor gives height, pitch, roll, but nothing fixes yaw."""
+    bag = record(tmp_path, Room(NOMINAL, boxes=(LOW_BOX,)))
+    with pytest.raises(CalibrationError, match=r'sees only 0 points within 0.05 m of the LiDAR'):
+        calibrate_bag(bag, config=config_of(NOMINAL))
+
+
+def test_a_tilted_lidar_is_refused(tmp_path):
+    bag = record(tmp_path, Room(NOMINAL))
+    config = config_of(NOMINAL).with_changes(lidar_pitch=DEG(5.0), use_tf=False)
+    with pytest.raises(CalibrationError, match=r"LiDAR's plane is tilted 5.0 deg from level"):
+        calibrate_bag(bag, config=config)

@@ -46,6 +46,8 @@ if TYPE_CHECKING:
 
     F64 = npt.NDArray[np.float64]
 
+# Degrees the LiDAR's plane may tilt (upside down is level too).
+LEVEL_TOLERANCE = 2.0
 # Rotation by +90 deg in the plane: d(R(yaw) p)/d(yaw) = J R(yaw) p.
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -228,6 +230,7 @@ def calibrate(
         raise CalibrationError(msg)
     for frame in frames:
         camera.check_depth(frame.depth)
+    _check_level(base_to_laser)
     floor, floor_frames = _floor(frames, camera, given, settings)
     roll, pitch = floor.camera_roll, floor.camera_pitch
     level = Transform.from_rpy(roll, pitch, 0.0, (0.0, 0.0, floor.offset)) @ BODY_TO_OPTICAL
@@ -272,6 +275,19 @@ def calibrate(
         camera_points=_placed(clouds, yaw, shift),
         camera_given=_placed(given_cloud, given.yaw, np.array([given.x, given.y])),
     )
+
+
+def _check_level(base_to_laser: Transform) -> None:
+    """The LiDAR's plane must be level: the band of camera points is a height band."""
+    axis = base_to_laser.rotation_matrix[:, 2]  # the LiDAR's z axis in the base frame
+    tilt = math.degrees(math.acos(min(1.0, abs(float(axis[2])))))
+    if tilt > LEVEL_TOLERANCE:
+        msg = (
+            f"the LiDAR's plane is tilted {tilt:.1f} deg from level (its mounting's roll and "
+            f'pitch); calibrate matches the camera at one height and needs a level LiDAR '
+            f'(within {LEVEL_TOLERANCE:g} deg): check lidar_roll / lidar_pitch or the TF'
+        )
+        raise CalibrationError(msg)
 
 
 # ------------------------------------------------------------------ floor

@@ -110,7 +110,11 @@ class Room:
 
     def depth_mm(self, rng: np.random.Generator) -> np.ndarray:
         depth = box_depth(self.camera, self.mounting.optical, list(self.boxes))
-        noisy = depth + rng.normal(0.0, 1.0, depth.shape) * self.depth_noise * depth**2
+        noise = rng.normal(0.0, 1.0, depth.shape)
+        finite = np.isfinite(depth)
+        noisy = np.where(
+            finite, depth + noise * self.depth_noise * np.where(finite, depth, 0.0) ** 2, depth
+        )
         return millimetres(noisy, far=10.0)
 
     def scan(self, stamp_ns: int, rng: np.random.Generator) -> Scan:
