@@ -269,3 +269,15 @@ def test_a_tilted_lidar_is_refused(tmp_path):
     config = config_of(NOMINAL).with_changes(lidar_pitch=DEG(5.0), use_tf=False)
     with pytest.raises(CalibrationError, match=r"LiDAR's plane is tilted 5.0 deg from level"):
         calibrate_bag(bag, config=config)
+
+
+def test_one_wall_and_a_door_frame_stub_fix_x_and_y(tmp_path):
+    """The wall ahead and a 15 cm deep stub of wall at its left end (a door frame): the
+    stub's face, across the wall, pins the match along it."""
+    true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
+    x_max = ROOM[1]
+    wall = (x_max, x_max + WALL, -10.0, 10.0, 0.0, 2.0)
+    stub = (x_max - 0.15, x_max, 0.9, 1.0, 0.0, 2.0)
+    bag = record(tmp_path, Room(true, boxes=(wall, stub)))
+    found = calibrate_bag(bag, config=config_of(NOMINAL))
+    assert_within_done_when(found.calibration.mounting, true)
