@@ -1,8 +1,9 @@
 """`scanfuse calibrate` on bags of a room recorded with known mountings (issue 25, item 4).
 
 The bags (tests.support.calibration) hold 2 s of a robot standing in a room: 10 Hz LiDAR
-scans and 15 Hz depth frames (320x240, depth noise 0.002 Z^2, LiDAR noise 5 mm), rendered
-from the geometry with the camera at the true mounting; the starting mounting given to
+scans and 15 Hz depth frames (320x240, depth noise 0.01 Z^2 as a RealSense D435's, LiDAR
+noise 5 mm), rendered from the geometry with the camera at the true mounting; the starting
+mounting given to
 `calibrate` (parameters or /tf_static) is wrong by centimetres and degrees. Done when:
 height within 1 cm, pitch and roll within 0.3 deg, yaw within 0.5 deg, x and y within 2 cm
 of the true mounting.
@@ -145,13 +146,15 @@ def test_calibrate_recovers_the_true_mounting_within_the_done_when_tolerances(ca
             strict=True,
         )
     )
-    # Residuals: the floor's noise at 0.002 Z^2 within reach; the match near the LiDAR's
-    # noise, and better than the given mounting's.
+    # Residuals: the floor's within its noise (0.01 Z^2 within 3 m, clipped at 3 cm); the
+    # match's as the sensors' noise says (1 sigma, less the 3-sigma gate's tails) and below
+    # the given mounting's, with more points matched.
     assert result.floor_frames == result.frames == 30
-    assert 0.0 < result.floor_rms < 0.01
-    assert result.match_rms < 0.015
-    assert result.matched_points > result.matched_given
-    assert result.matched_points > 0.8 * result.camera_count
+    assert 0.0 < result.floor_rms < 0.015
+    assert 0.8 < result.match_sigmas < 1.1
+    assert result.match_sigmas < result.match_sigmas_given
+    assert result.matched_given < result.matched_points
+    assert result.matched_points > 0.7 * result.camera_count
 
 
 def test_the_printed_transform_is_the_mounting_in_rep_103():
@@ -271,13 +274,13 @@ def test_a_tilted_lidar_is_refused(tmp_path):
         calibrate_bag(bag, config=config)
 
 
-def test_one_wall_and_a_door_frame_stub_fix_x_and_y(tmp_path):
-    """The wall ahead and a 15 cm deep stub of wall at its left end (a door frame): the
-    stub's face, across the wall, pins the match along it."""
+def test_one_wall_and_a_short_wall_across_it_fix_x_and_y(tmp_path):
+    """The wall ahead and 30 cm of wall across it (a cabinet's side, a recess): its face,
+    seen 2 m away through the depth's 4 cm of noise, pins the match along the wall."""
     true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
     x_max = ROOM[1]
     wall = (x_max, x_max + WALL, -10.0, 10.0, 0.0, 2.0)
-    stub = (x_max - 0.15, x_max, 0.9, 1.0, 0.0, 2.0)
+    stub = (x_max - 0.3, x_max, 0.9, 1.0, 0.0, 2.0)
     bag = record(tmp_path, Room(true, boxes=(wall, stub)))
     found = calibrate_bag(bag, config=config_of(NOMINAL))
     assert_within_done_when(found.calibration.mounting, true)

@@ -90,7 +90,7 @@ class Room:
     duration: float = 2.0
     scan_hz: float = 10.0
     depth_hz: float = 15.0
-    depth_noise: float = 0.002
+    depth_noise: float = 0.01
     lidar_noise: float = 0.005
     seed: int = 0
     boxes: tuple[Bounds, ...] = field(default_factory=lambda: tuple(room_boxes()))

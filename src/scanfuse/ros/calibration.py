@@ -93,6 +93,7 @@ class BagCalibration:
         for name in ('roll', 'pitch', 'yaw'):
             values = (getattr(given, name), getattr(found, name), getattr(change, name))
             table.add_row(f'camera_{name} (deg)', *(f'{math.degrees(v):+.2f}' for v in values))
+        spread = result.frame_spread
         residuals = Table(show_header=False)
         residuals.add_column('what')
         residuals.add_column('value', justify='right')
@@ -104,7 +105,17 @@ class BagCalibration:
             ('floor RMS', f'{result.floor_rms * 1e3:.1f} mm'),
             (
                 'scan match RMS (given -> estimated)',
-                f'{result.match_rms_given * 1e3:.1f} -> {result.match_rms * 1e3:.1f} mm',
+                (
+                    f'{result.match_rms_given * 1e3:.1f} -> {result.match_rms * 1e3:.1f} mm '
+                    f'({result.match_sigmas_given:.2f} -> {result.match_sigmas:.2f} sigma)'
+                ),
+            ),
+            (
+                'frame-to-frame spread of x, y, yaw',
+                (
+                    f'{spread[0] * 1e3:.1f} mm, {spread[1] * 1e3:.1f} mm, '
+                    f'{math.degrees(spread[2]):.2f} deg'
+                ),
             ),
             (
                 'camera points on the LiDAR lines (given -> estimated)',
@@ -133,6 +144,13 @@ class BagCalibration:
             'camera_points': result.camera_count,
             'match_rms': result.match_rms,
             'match_rms_given': result.match_rms_given,
+            'match_sigmas': result.match_sigmas,
+            'match_sigmas_given': result.match_sigmas_given,
+            'frame_spread': {
+                'x': result.frame_spread[0],
+                'y': result.frame_spread[1],
+                'yaw': result.frame_spread[2],
+            },
             'commands': self.commands(),
         }
 
@@ -148,7 +166,8 @@ def calibrate_bag(
     settings: CalibrationSettings | None = None,
     distro: Distro = Distro.HUMBLE,
 ) -> BagCalibration:
-    """The camera's mounting from the depth frames and LiDAR scans of a bag."""
+    """The camera's mounting from the depth frames and LiDAR scans of a bag (`settings`:
+    the defaults with `config`'s depth_noise)."""
     config = config or FusionConfig()
     source = Path(input)
     if not source.exists():
@@ -159,6 +178,7 @@ def calibrate_bag(
         with _located(job):
             job.choose(scan_topic, depth_topic, camera_info_topic)
             frames = job.read(max_frames)
+    settings = settings or CalibrationSettings(depth_noise=config.depth_noise)
     result = calibrate(frames, job.camera, job.base_to_laser, job.given, settings)
     return BagCalibration(
         calibration=result,
