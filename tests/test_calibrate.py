@@ -26,7 +26,7 @@ from scanfuse.cli import main
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, CalibrationError
 from scanfuse.ros.calibration import calibrate_bag
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 from tests.support.calibration import LIDAR, LOW_BOX, PILLAR, ROOM, WALL, Room, room_messages
 from tests.support.synthetic import write_bag
 
@@ -311,3 +311,25 @@ def test_a_bag_of_the_simulator_calibrates_within_the_done_when_tolerances(tmp_p
     found = calibrate_bag(bag, config=parameters.with_changes(use_tf=False))
     assert found.given_source == 'the camera_* parameters'
     assert_within_done_when(found.calibration.mounting, true)
+
+
+def test_a_camera_hung_from_a_mount_frame_is_printed_under_it(tmp_path):
+    """TF: base_link -> camera_mount -> camera_link -> optical, camera_link wrong. The
+    command publishes camera_mount -> camera_link, which composed with the mount's pose is
+    the true body pose."""
+    true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
+    mount = Transform.from_rpy(0.0, 0.0, DEG(10.0), (0.05, 0.02, 0.30))
+    room = Room(true)
+    bag = write_bag(tmp_path / 'room', room_messages(room, tf_camera=NOMINAL, mount=mount))
+    found = calibrate_bag(bag, config=config_of(NOMINAL))
+    assert found.given_source.startswith('TF')
+    assert errors(found.calibration.given, NOMINAL) == pytest.approx(
+        dict.fromkeys(errors(true, true), 0.0), abs=1e-9
+    )
+    (command,) = found.commands()
+    assert command.endswith('--frame-id camera_mount --child-frame-id camera_link')
+    value = {name: float(number) for name, number in re.findall(r'--(\w+) (-?[\d.]+)', command)}
+    published = mount @ Transform.from_rpy(
+        value['roll'], value['pitch'], value['yaw'], (value['x'], value['y'], value['z'])
+    )
+    assert_within_done_when(Mounting.of_optical(published @ BODY_TO_OPTICAL), true)

@@ -103,12 +103,20 @@ class Mounting:
     def static_transform_command(self, parent: str, child: str) -> str:
         """The `static_transform_publisher` line that publishes this body pose (parent ->
         child, child the camera's body frame: x forward, y left, z up)."""
-        return (
-            'ros2 run tf2_ros static_transform_publisher '
-            f'--x {self.x:.4f} --y {self.y:.4f} --z {self.height:.4f} '
-            f'--roll {self.roll:.5f} --pitch {self.pitch:.5f} --yaw {self.yaw:.5f} '
-            f'--frame-id {parent} --child-frame-id {child}'
-        )
+        return static_transform_command(self.body, parent, child)
+
+
+def static_transform_command(pose: Transform, parent: str, child: str) -> str:
+    """`ros2 run tf2_ros static_transform_publisher` with the pose of `child` in `parent`
+    (its --roll --pitch --yaw are tf2's setRPY: R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    x, y, z = pose.translation
+    roll, pitch, yaw = pose.rpy()
+    return (
+        'ros2 run tf2_ros static_transform_publisher '
+        f'--x {x:.4f} --y {y:.4f} --z {z:.4f} '
+        f'--roll {roll:.5f} --pitch {pitch:.5f} --yaw {yaw:.5f} '
+        f'--frame-id {parent} --child-frame-id {child}'
+    )
 
 
 def body_to_optical_command(body: str, optical: str) -> str:

@@ -32,7 +32,7 @@ from scanfuse.ros.messages import (
     typestore,
 )
 from scanfuse.scan import Scan
-from scanfuse.transforms import BODY_TO_OPTICAL
+from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 from tests.support.render import Bounds, box_depth, millimetres
 
 NANOSECONDS = 1_000_000_000
@@ -139,9 +139,12 @@ class Room:
         )
 
 
-def mounting_transforms(lidar: Mounting, camera: Mounting | None) -> list[StampedTransform]:
+def mounting_transforms(
+    lidar: Mounting, camera: Mounting | None, mount: Transform | None = None
+) -> list[StampedTransform]:
     """/tf_static: base_link -> laser, and (if given) base_link -> camera_link ->
-    camera_depth_optical_frame."""
+    camera_depth_optical_frame; with `mount`, base_link -> camera_mount (at `mount`) ->
+    camera_link."""
     transforms = [
         StampedTransform(
             'base_link', 'laser', (lidar.x, lidar.y, lidar.height), lidar.body.rotation
@@ -149,8 +152,14 @@ def mounting_transforms(lidar: Mounting, camera: Mounting | None) -> list[Stampe
     ]
     if camera is not None:
         body = camera.body
+        parent = 'base_link'
+        if mount is not None:
+            transforms.append(
+                StampedTransform('base_link', 'camera_mount', mount.translation, mount.rotation)
+            )
+            body, parent = mount.inverse() @ body, 'camera_mount'
         transforms += [
-            StampedTransform('base_link', 'camera_link', body.translation, body.rotation),
+            StampedTransform(parent, 'camera_link', body.translation, body.rotation),
             StampedTransform(
                 'camera_link',
                 'camera_depth_optical_frame',
@@ -162,13 +171,18 @@ def mounting_transforms(lidar: Mounting, camera: Mounting | None) -> list[Stampe
 
 
 def room_messages(
-    room: Room, *, tf_camera: Mounting | None = None, with_lidar: bool = True
+    room: Room,
+    *,
+    tf_camera: Mounting | None = None,
+    mount: Transform | None = None,
+    with_lidar: bool = True,
 ) -> list[tuple[str, str, int, bytes]]:
     """(topic, type, log time, CDR) of the recording; /tf_static holds the LiDAR's true
-    mounting and, if `tf_camera` is given, that camera mounting (right or wrong)."""
+    mounting and, if `tf_camera` is given, that camera mounting (right or wrong), hung from
+    `mount` if given (`mounting_transforms`)."""
     store = typestore()
     rng = np.random.default_rng(room.seed)
-    tf = tf_message_to_cdr(mounting_transforms(room.lidar, tf_camera), store)
+    tf = tf_message_to_cdr(mounting_transforms(room.lidar, tf_camera, mount), store)
     messages = [('/tf_static', TF_MESSAGE, room.start_ns, tf)]
     if with_lidar:
         for i in range(round(room.duration * room.scan_hz)):

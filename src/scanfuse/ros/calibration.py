@@ -24,6 +24,7 @@ from scanfuse.calibrate import (
     Mounting,
     body_to_optical_command,
     calibrate,
+    static_transform_command,
 )
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError
@@ -64,6 +65,8 @@ class BagCalibration:
     optical_frame: str
     body_frame: str  # the camera body frame the static transform names
     body_in_tf: bool  # the bag's TF already holds body_frame (replace its transform)
+    parent_frame: str  # body_frame's parent in the bag's TF, else base_frame
+    base_to_parent: Transform  # its pose in the base frame (identity: the base itself)
     given_source: str
     lidar_source: str
 
@@ -71,10 +74,11 @@ class BagCalibration:
         return self.calibration.mounting.parameters_yaml()
 
     def commands(self) -> list[str]:
-        """The static transform(s) that publish the estimate: base -> body (and body ->
-        optical when the bag's TF has no body frame above the optical one)."""
-        mounting = self.calibration.mounting
-        lines = [mounting.static_transform_command(self.base_frame, self.body_frame)]
+        """The static transform(s) that publish the estimate: parent -> body (the body
+        frame's parent in the bag's TF, else the base frame), and body -> optical when the
+        bag's TF has no body frame above the optical one."""
+        pose = self.base_to_parent.inverse() @ self.calibration.mounting.body
+        lines = [static_transform_command(pose, self.parent_frame, self.body_frame)]
         if not self.body_in_tf:
             lines.append(body_to_optical_command(self.body_frame, self.optical_frame))
         return lines
@@ -189,6 +193,8 @@ def calibrate_bag(
         optical_frame=job.optical_frame,
         body_frame=job.body_frame,
         body_in_tf=job.body_in_tf,
+        parent_frame=job.parent_frame,
+        base_to_parent=job.base_to_parent,
         given_source=job.given_source,
         lidar_source=job.lidar_source,
     )
@@ -216,6 +222,8 @@ class _CalibrationJob(_BagJob):
         self.scan_topic = self.depth_topic = self.info_topic = ''
         self.optical_frame = self.body_frame = ''
         self.body_in_tf = False
+        self.parent_frame = frame_name(config.base_frame)
+        self.base_to_parent = Transform()
         self.given_source = self.lidar_source = ''
         self.base_to_laser = Transform()
         self.given = Mounting(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -283,6 +291,9 @@ class _CalibrationJob(_BagJob):
             self.given_source = 'the camera_* parameters'
         self.given = Mounting.of_optical(given)
         self.body_frame, self.body_in_tf = self._body_frame(base, optical)
+        if self.body_in_tf:
+            self.parent_frame = self._parent(base, self.body_frame)
+            self.base_to_parent = Transform.from_matrix(tf.lookup(base, self.parent_frame))
 
     def _body_frame(self, base: str, optical: str) -> tuple[str, bool]:
         """The frame above the optical one turned from it as every camera body is (the one
@@ -302,6 +313,13 @@ class _CalibrationJob(_BagJob):
                 return optical.removesuffix(suffix) + replacement, False
         return f'{optical}_body', False
 
+    def _parent(self, base: str, frame: str) -> str:
+        """`frame`'s parent in the TF tree below `base` (`base` itself for a child of it)."""
+        tf = self.stream.tf
+        chain = tf.chain(base, frame)  # the child frames from base down to `frame`
+        above = [f for f in chain - {frame} if len(tf.chain(base, f)) == len(chain) - 1]
+        return above[0] if above else base
+
     def _frames(self, max_frames: int) -> list[CalibrationFrame]:
         depth_connections = self.connections(self.depth_topic)
         count = sum(c.msgcount for c in depth_connections)
@@ -311,11 +329,12 @@ class _CalibrationJob(_BagJob):
         index = 0
         connections = [*self.connections(self.scan_topic), *depth_connections]
         for connection, _, raw in self.messages(connections):
-            cdr = self.to_cdr(connection, raw)
             if connection.topic == self.scan_topic:
+                cdr = self.to_cdr(connection, raw)
                 scans.append(scan_from_msg(self.decode_cdr(cdr, LASER_SCAN)))
                 continue
             if index % stride == 0:
+                cdr = self.to_cdr(connection, raw)
                 image = depth_from_msg(self.decode_cdr(cdr, IMAGE))
                 check_depth_matches_camera(image, self.camera)
                 images.append(image)
