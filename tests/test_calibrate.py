@@ -252,11 +252,13 @@ def test_one_straight_wall_cannot_fix_x_and_y(tmp_path):
     assert PILLAR[4] < LIDAR.height < PILLAR[5]  # the room's pillar would have fixed it
 
 
-@pytest.mark.parametrize('storage', ['sqlite3', 'ros1'])
-def test_sqlite3_and_ros1_bags_calibrate_as_mcap_does(storage, tmp_path):
+@pytest.mark.parametrize(
+    ('storage', 'metres'), [('sqlite3', False), ('ros1', False), ('mcap', True)]
+)
+def test_sqlite3_and_ros1_bags_and_float_depth_calibrate_as_mcap_does(storage, metres, tmp_path):
     true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
     path = tmp_path / ('room.bag' if storage == 'ros1' else 'room')
-    bag = write_bag(path, room_messages(Room(true)), storage=storage)
+    bag = write_bag(path, room_messages(Room(true, metres=metres)), storage=storage)
     found = calibrate_bag(bag, config=config_of(NOMINAL))
     assert_within_done_when(found.calibration.mounting, true)
 

@@ -162,7 +162,7 @@ class CalibrationSettings:
     cell: float = 0.04  # metres: the top-view cells in which it must reach them
     max_yaw_error: float = math.radians(12.0)  # starts of the match: given yaw +- this
     start_distance: float = 0.5  # metres: pairs farther apart are not matched at first
-    inlier_distance: float = 0.03  # metres: pairs within it count as matched in the end
+    inlier_distance: float = 0.03  # metres (or 3 sigma): pairs within it match in the end
     match_frames: int = 10  # frames (spread over the recording) the scan match uses
     min_matched: int = 60  # matched camera points needed
     min_constraint: float = 0.015  # least share of the match's information in one direction
@@ -644,8 +644,9 @@ class _Matcher:
         return _Matcher(clouds, [self.scans[i] for i in chosen], self.settings, most)
 
     def pairs(self, yaw: float, shift: F64, distance: float) -> _Pairs:
-        """Each camera point, placed by (yaw, shift), with its nearest LiDAR point that has
-        a line, within `distance` or 3 sigma of the point's noise."""
+        """Each camera point, placed by (yaw, shift), with the LiDAR reading on its bearing
+        when that reading has a line and the point lies within `distance` of it, or within
+        3 sigma of the sensors' noise."""
         rotation = _rotation(yaw)
         rows, residuals, sigmas, positions = [], [], [], []
         for cloud, scan in zip(self.clouds, self.scans, strict=True):
@@ -741,7 +742,8 @@ class _Matcher:
         if best[0] < self.settings.min_matched:
             msg = (
                 f'only {best[0]} camera points lie on what the LiDAR sees (within '
-                f'{self.settings.inlier_distance} m), fewer than {self.settings.min_matched}: '
+                f'{self.settings.inlier_distance} m or 3 sigma of the noise), fewer than '
+                f'{self.settings.min_matched}: '
                 'the camera and the LiDAR must see the same walls or tall obstacles; '
                 'record facing a corner of a room, and give camera_yaw within '
                 f'{math.degrees(limit):.0f} deg'

@@ -95,6 +95,7 @@ class Room:
     seed: int = 0
     boxes: tuple[Bounds, ...] = field(default_factory=lambda: tuple(room_boxes()))
     start_ns: int = 1_700_000_000 * NANOSECONDS
+    metres: bool = False  # depth as 32FC1 metres (NaN: none), not 16UC1 millimetres
 
     @property
     def camera(self) -> CameraModel:
@@ -107,6 +108,13 @@ class Room:
             (self.height - 1) / 2,
             frame_id='camera_depth_optical_frame',
         )
+
+    def depth_image(self, rng: np.random.Generator) -> np.ndarray:
+        """16UC1 millimetres (0: none) or, with `metres`, 32FC1 metres (NaN: none)."""
+        millimetre = self.depth_mm(rng)
+        if not self.metres:
+            return millimetre
+        return np.where(millimetre > 0, millimetre / 1000.0, np.nan).astype(np.float32)
 
     def depth_mm(self, rng: np.random.Generator) -> np.ndarray:
         depth = box_depth(self.camera, self.mounting.optical, list(self.boxes))
@@ -193,7 +201,7 @@ def room_messages(
     for i in range(round(room.duration * room.depth_hz)):
         stamp = room.start_ns + round(i * NANOSECONDS / room.depth_hz) + 5_000_000
         image = depth_to_cdr(
-            room.depth_mm(rng), frame_id=camera.frame_id, stamp_ns=stamp, store=store
+            room.depth_image(rng), frame_id=camera.frame_id, stamp_ns=stamp, store=store
         )
         info = camera_to_cdr(camera, stamp_ns=stamp, store=store)
         messages.append(('/camera/depth/image_raw', IMAGE, stamp + 30_000_000, image))
