@@ -79,7 +79,8 @@ def assert_within_done_when(found: Mounting, true: Mounting) -> None:
     assert all(error[name] <= limits[name] for name in limits), (error, found, true)
 
 
-# (true camera mounting, LiDAR mounting, given camera mounting, given through TF)
+# (true camera mounting, LiDAR mounting, given camera mounting, given through TF (else the
+# parameters))
 CASES = {
     'level, ahead': (
         Mounting(0.12, 0.0, 0.45, 0.0, DEG(20.0), 0.0),
@@ -105,6 +106,12 @@ CASES = {
         NOMINAL,
         False,
     ),
+    'far from the given mounting (20 cm, 11 deg)': (
+        Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0)),
+        LIDAR,
+        Mounting(0.25, 0.10, 0.20, DEG(6.0), DEG(4.0), DEG(17.0)),
+        False,
+    ),
 }
 
 
@@ -116,11 +123,10 @@ def record(tmp_path: Path, room: Room, *, tf_camera: Mounting | None = None) -> 
 def test_calibrate_recovers_the_true_mounting_within_the_done_when_tolerances(case, tmp_path):
     true, lidar, given, through_tf = CASES[case]
     bag = record(tmp_path, Room(true, lidar=lidar), tf_camera=given if through_tf else None)
-    # The parameters say the nominal mounting; TF, when it has the camera, says `given`.
-    found = calibrate_bag(bag, config=config_of(NOMINAL, lidar))
+    # The parameters say `given`, or the nominal mounting when TF has the camera at `given`.
+    found = calibrate_bag(bag, config=config_of(NOMINAL if through_tf else given, lidar))
     result = found.calibration
-    expected_given = given if through_tf else NOMINAL
-    assert errors(result.given, expected_given) == pytest.approx(
+    assert errors(result.given, given) == pytest.approx(
         dict.fromkeys(errors(true, true), 0.0), abs=1e-9
     )
     assert found.given_source.startswith('TF' if through_tf else 'the camera_* parameters')
