@@ -159,13 +159,13 @@ def calibrate(
     found = calibrate_bag(
         input_bag, config=config, scan_topic=scan, depth_topic=depth, camera_info_topic=camera_info
     )
-    written = save_calibration(found, out)
     output = Console()
     for table in found.tables():
         output.print(table)
     typer.echo(found.parameters_yaml(), nl=False)
     for line in found.commands():
         typer.echo(line)
+    written = save_calibration(found, out)
     output.print(f'written: {", ".join(str(path) for path in written)}')
 
 
