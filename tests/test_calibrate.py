@@ -31,6 +31,7 @@ from tests.support.calibration import LIDAR, LOW_BOX, PILLAR, ROOM, WALL, Room, 
 from tests.support.synthetic import write_bag
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
 DEG = math.radians
@@ -341,3 +342,23 @@ def test_a_camera_hung_from_a_mount_frame_is_printed_under_it(tmp_path):
         value['roll'], value['pitch'], value['yaw'], (value['x'], value['y'], value['z'])
     )
     assert_within_done_when(Mounting.of_optical(published @ BODY_TO_OPTICAL), true)
+
+
+def test_frames_taken_while_odometry_says_the_robot_turned_are_left_out(tmp_path):
+    """/odom: the base turns at 0.5 rad/s for 1 s, then stands. Depth frames (15 Hz, 5 ms
+    after the 10 Hz scans' grid) are each at least 5 ms from their scan, 0.14 deg of turn
+    at that rate, more than `still_turn` (0.1 deg): the 15 frames of the first second are
+    left out; the 15 after it are used."""
+    true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
+    turning = record_with_heading(tmp_path / 'turning', true, lambda t: 0.5 * min(t, 1.0))
+    found = calibrate_bag(turning, config=config_of(NOMINAL))
+    assert (found.odometry_topic, found.moving_frames) == ('/odom', 15)
+    assert found.calibration.frames == 15
+    assert_within_done_when(found.calibration.mounting, true)
+    always = record_with_heading(tmp_path / 'always', true, lambda t: 0.5 * t)
+    with pytest.raises(CalibrationError, match=r'the robot moved between every depth frame'):
+        calibrate_bag(always, config=config_of(NOMINAL))
+
+
+def record_with_heading(path: Path, true: Mounting, heading: Callable[[float], float]) -> Path:
+    return write_bag(path, room_messages(Room(true), heading=heading))

@@ -166,6 +166,8 @@ class CalibrationSettings:
     match_frames: int = 10  # frames (spread over the recording) the scan match uses
     min_matched: int = 60  # matched camera points needed
     min_constraint: float = 0.015  # least share of the match's information in one direction
+    still_shift: float = 0.005  # metres the base may move between a frame and its scan, and
+    still_turn: float = math.radians(0.1)  # radians it may turn (by odometry, if recorded)
 
     def __post_init__(self) -> None:
         checks = (
@@ -188,6 +190,8 @@ class CalibrationSettings:
             ('match_frames', self.match_frames >= 1),
             ('min_matched', self.min_matched >= 3),
             ('min_constraint', 0.0 <= self.min_constraint < 1.0),
+            ('still_shift', self.still_shift >= 0.0),
+            ('still_turn', self.still_turn >= 0.0),
         )
         for name, valid in checks:
             value = getattr(self, name)
@@ -241,6 +245,36 @@ class Calibration:
 
 def _wrap(angle: float) -> float:
     return math.remainder(angle, 2.0 * math.pi)
+
+
+def pair_motion(
+    first_ns: npt.ArrayLike,
+    second_ns: npt.ArrayLike,
+    odometry_ns: npt.ArrayLike,
+    poses: npt.ArrayLike,
+) -> tuple[F64, F64]:
+    """How far the base moved (metres) and turned (radians) between the stamps of each pair
+    (a depth frame and its scan), by odometry (`poses`: x, y, yaw per stamp, in time order)
+    interpolated linearly; NaN where a stamp lies outside the odometry's time span."""
+    times = np.asarray(odometry_ns, dtype=np.int64)
+    pose = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    first = np.asarray(first_ns, dtype=np.int64)
+    second = np.asarray(second_ns, dtype=np.int64)
+    if times.size < 2:
+        nothing = np.full(first.shape, np.nan)
+        return nothing, nothing.copy()
+    base = times[0]
+    span = (times - base).astype(np.float64)
+    yaw = np.unwrap(pose[:, 2])
+
+    def at(stamps: npt.NDArray[np.int64]) -> F64:
+        t = (stamps - base).astype(np.float64)
+        values = np.stack([np.interp(t, span, column) for column in (pose[:, 0], pose[:, 1], yaw)])
+        values[:, (t < span[0]) | (t > span[-1])] = np.nan
+        return values
+
+    a, b = at(first), at(second)
+    return np.hypot(b[0] - a[0], b[1] - a[1]), np.abs(b[2] - a[2])
 
 
 def calibrate(

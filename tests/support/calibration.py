@@ -14,19 +14,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scanfuse.calibrate import Mounting
 from scanfuse.camera import CameraModel
 from scanfuse.frames import StampedTransform
+from scanfuse.motion import PlanarPose
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
     TF_MESSAGE,
+    OdometrySample,
     camera_to_cdr,
     depth_to_cdr,
+    odometry_to_cdr,
     scan_to_cdr,
     tf_message_to_cdr,
     typestore,
@@ -34,6 +39,9 @@ from scanfuse.ros.messages import (
 from scanfuse.scan import Scan
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 from tests.support.render import Bounds, box_depth, millimetres
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 NANOSECONDS = 1_000_000_000
 WALL = 0.2
@@ -184,10 +192,12 @@ def room_messages(
     tf_camera: Mounting | None = None,
     mount: Transform | None = None,
     with_lidar: bool = True,
+    heading: Callable[[float], float] | None = None,
 ) -> list[tuple[str, str, int, bytes]]:
     """(topic, type, log time, CDR) of the recording; /tf_static holds the LiDAR's true
     mounting and, if `tf_camera` is given, that camera mounting (right or wrong), hung from
-    `mount` if given (`mounting_transforms`)."""
+    `mount` if given (`mounting_transforms`). With `heading` (seconds -> yaw), /odom at
+    50 Hz says the base turned so (the images and scans stay those of the standing robot)."""
     store = typestore()
     rng = np.random.default_rng(room.seed)
     tf = tf_message_to_cdr(mounting_transforms(room.lidar, tf_camera, mount), store)
@@ -206,5 +216,11 @@ def room_messages(
         info = camera_to_cdr(camera, stamp_ns=stamp, store=store)
         messages.append(('/camera/depth/image_raw', IMAGE, stamp + 30_000_000, image))
         messages.append(('/camera/depth/camera_info', CAMERA_INFO, stamp + 30_000_000, info))
+    if heading is not None:
+        for i in range(round(room.duration * 50) + 1):
+            stamp = room.start_ns + i * NANOSECONDS // 50
+            pose = PlanarPose(0.0, 0.0, heading(i / 50))
+            raw = odometry_to_cdr(OdometrySample(stamp, 'odom', 'base_link', pose), store)
+            messages.append(('/odom', ODOMETRY, stamp, raw))
     messages.sort(key=lambda item: item[2])
     return messages

@@ -24,20 +24,24 @@ from scanfuse.calibrate import (
     Mounting,
     body_to_optical_command,
     calibrate,
+    pair_motion,
     static_transform_command,
 )
 from scanfuse.config import FusionConfig
-from scanfuse.errors import BagError
+from scanfuse.errors import BagError, CalibrationError
 from scanfuse.frames import frame_name
 from scanfuse.ros.bag import _BagJob, _located, _open_reader, describe_topics
 from scanfuse.ros.messages import (
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
+    DepthImage,
     Distro,
     camera_from_msg,
     check_depth_matches_camera,
     depth_from_msg,
     deserialize,
+    odometry_from_msg,
     scan_from_msg,
 )
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
@@ -69,6 +73,8 @@ class BagCalibration:
     base_to_parent: Transform  # its pose in the base frame (identity: the base itself)
     given_source: str
     lidar_source: str
+    odometry_topic: str = ''  # odometry that showed which frames the robot stood still in
+    moving_frames: int = 0  # depth frames left out: the robot moved between them and scans
 
     def parameters_yaml(self) -> str:
         return self.calibration.mounting.parameters_yaml()
@@ -106,6 +112,12 @@ class BagCalibration:
             ('LiDAR mounting from', self.lidar_source),
             ('topics', f'{self.scan_topic} + {self.depth_topic}'),
             ('frames used (floor / scan match)', f'{result.floor_frames} / {result.match_frames}'),
+            (
+                'frames left out (robot moving)',
+                f'{self.moving_frames} (by {self.odometry_topic})'
+                if self.odometry_topic
+                else 'no odometry: record standing still',
+            ),
             ('floor RMS', f'{result.floor_rms * 1e3:.1f} mm'),
             (
                 'scan match RMS (given -> estimated)',
@@ -143,6 +155,8 @@ class BagCalibration:
             'floor_frames': result.floor_frames,
             'floor_rms': result.floor_rms,
             'match_frames': result.match_frames,
+            'moving_frames': self.moving_frames,
+            'odometry_topic': self.odometry_topic,
             'matched_points': result.matched_points,
             'matched_given': result.matched_given,
             'camera_points': result.camera_count,
@@ -177,12 +191,12 @@ def calibrate_bag(
     if not source.exists():
         msg = f'bag {source} does not exist; give the folder or file `ros2 bag record` wrote'
         raise BagError(msg)
+    settings = settings or CalibrationSettings(depth_noise=config.depth_noise)
     with _open_reader(source, distro) as reader:
         job = _CalibrationJob(reader, config, distro)
         with _located(job):
             job.choose(scan_topic, depth_topic, camera_info_topic)
-            frames = job.read(max_frames)
-    settings = settings or CalibrationSettings(depth_noise=config.depth_noise)
+            frames = job.read(max_frames, settings)
     result = calibrate(frames, job.camera, job.base_to_laser, job.given, settings)
     return BagCalibration(
         calibration=result,
@@ -197,6 +211,8 @@ def calibrate_bag(
         base_to_parent=job.base_to_parent,
         given_source=job.given_source,
         lidar_source=job.lidar_source,
+        odometry_topic=job.odometry_topic,
+        moving_frames=job.moving_frames,
     )
 
 
@@ -227,6 +243,8 @@ class _CalibrationJob(_BagJob):
         self.given_source = self.lidar_source = ''
         self.base_to_laser = Transform()
         self.given = Mounting(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self.odometry_topic = ''
+        self.moving_frames = 0
         self._camera: CameraModel | None = None
 
     @property
@@ -252,7 +270,7 @@ class _CalibrationJob(_BagJob):
         self.scan_topic, self.depth_topic = choice.scan, choice.depth
         self.info_topic = choice.camera_info
 
-    def read(self, max_frames: int) -> list[CalibrationFrame]:
+    def read(self, max_frames: int, settings: CalibrationSettings) -> list[CalibrationFrame]:
         """The mounting and camera first, then depth frames paired with scans."""
         info = self.first_message(self.info_topic)
         scan = self.first_message(self.scan_topic)
@@ -274,7 +292,7 @@ class _CalibrationJob(_BagJob):
         self.optical_frame = frame_name(str(depth.header.frame_id) or str(info.header.frame_id))
         self._read_mounting()
         self._mountings(laser)
-        return self._frames(max_frames)
+        return self._frames(max_frames, settings)
 
     def _mountings(self, laser: str) -> None:
         config, tf = self.config, self.stream.tf
@@ -320,7 +338,49 @@ class _CalibrationJob(_BagJob):
         above = [f for f in chain - {frame} if len(tf.chain(base, f)) == len(chain) - 1]
         return above[0] if above else base
 
-    def _frames(self, max_frames: int) -> list[CalibrationFrame]:
+    def _odometry(self) -> tuple[list[int], list[tuple[float, float, float]]]:
+        """Stamps and planar poses of the odometry topic, if the bag has it."""
+        topic = self.config.odom_topic
+        if self.topics_types.get(topic) != ODOMETRY:
+            return [], []
+        self.odometry_topic = topic
+        samples = sorted(
+            (
+                odometry_from_msg(self.decode(connection, raw))
+                for connection, _, raw in self.messages(self.connections(topic))
+            ),
+            key=lambda sample: sample.stamp_ns,
+        )
+        poses = [(s.pose.x, s.pose.y, s.pose.yaw) for s in samples]
+        return [s.stamp_ns for s in samples], poses
+
+    def _still(
+        self, pairs: list[tuple[DepthImage, Scan]], settings: CalibrationSettings
+    ) -> list[tuple[DepthImage, Scan]]:
+        """The pairs between whose stamps odometry says the robot stood still (all of them
+        without odometry, or where it does not cover the stamps)."""
+        stamps, poses = self._odometry()
+        if not stamps or not pairs:
+            return pairs
+        shift, turn = pair_motion(
+            [image.stamp_ns for image, _ in pairs],
+            [scan.stamp_ns for _, scan in pairs],
+            stamps,
+            poses,
+        )
+        with np.errstate(invalid='ignore'):
+            moving = (shift > settings.still_shift) | (turn > settings.still_turn)
+        self.moving_frames = int(moving.sum())
+        if moving.all():
+            msg = (
+                f'the robot moved between every depth frame and its scan (by {self.odometry_topic}'
+                f': up to {np.nanmax(shift) * 100:.1f} cm, {math.degrees(np.nanmax(turn)):.1f} '
+                'deg); calibrate needs the robot standing still for a few seconds'
+            )
+            raise CalibrationError(msg)
+        return [pair for pair, away in zip(pairs, moving, strict=True) if not away]
+
+    def _frames(self, max_frames: int, settings: CalibrationSettings) -> list[CalibrationFrame]:
         depth_connections = self.connections(self.depth_topic)
         count = sum(c.msgcount for c in depth_connections)
         stride = max(1, math.ceil(count / max(1, max_frames)))
@@ -346,21 +406,21 @@ class _CalibrationJob(_BagJob):
         order = np.argsort(stamps)
         stamps = stamps[order]
         window = round(self.config.max_time_offset * 1e9)
-        frames = []
+        pairs = []
         for image in images:
             at = int(np.searchsorted(stamps, image.stamp_ns))
             near = [i for i in (at - 1, at) if 0 <= i < stamps.size]
             best = min(near, key=lambda i: abs(int(stamps[i]) - image.stamp_ns))
             if abs(int(stamps[best]) - image.stamp_ns) <= window:
-                frames.append(CalibrationFrame(image.depth, scans[int(order[best])]))
-        if not frames:
+                pairs.append((image, scans[int(order[best])]))
+        if not pairs:
             msg = (
                 f'no depth frame of {self.depth_topic} has a scan of {self.scan_topic} within '
                 f'max_time_offset = {self.config.max_time_offset} s; are the two stamped by '
                 'the same clock? (raise max_time_offset in --params if they are)'
             )
             raise BagError(msg)
-        return frames
+        return [CalibrationFrame(image.depth, scan) for image, scan in self._still(pairs, settings)]
 
     def decode_cdr(self, cdr: bytes, msgtype: str) -> Any:
         return deserialize(cdr, msgtype, self.store)
