@@ -362,3 +362,12 @@ def test_frames_taken_while_odometry_says_the_robot_turned_are_left_out(tmp_path
 
 def record_with_heading(path: Path, true: Mounting, heading: Callable[[float], float]) -> Path:
     return write_bag(path, room_messages(Room(true), heading=heading))
+
+
+def test_the_command_turns_a_refusal_into_one_line_and_exit_code_1(tmp_path, capsys):
+    bag = write_bag(tmp_path / 'camera_only', room_messages(Room(NOMINAL), with_lidar=False))
+    assert main(['calibrate', str(bag), '--out', str(tmp_path / 'out')]) == 1
+    error = capsys.readouterr().err
+    assert 'error: no LiDAR scans (LaserScan) in bag' in error
+    assert 'Traceback' not in error
+    assert not (tmp_path / 'out').exists()
