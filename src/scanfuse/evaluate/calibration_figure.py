@@ -35,10 +35,10 @@ def calibration_figure(result: Calibration, title: str, path: Path) -> Path:
     )
     lidar = result.lidar_points
     for axes, (name, mounting, camera, rms) in zip(axes_row, panels, strict=True):
-        axes.scatter(lidar[:, 0], lidar[:, 1], s=3, c='black', label='LiDAR scan')
+        axes.scatter(lidar[:, 0], lidar[:, 1], s=2, c='black', label='LiDAR scan', zorder=3)
         if camera.size:
             axes.scatter(
-                camera[:, 0], camera[:, 1], s=2, c='tab:orange', alpha=0.5,
+                camera[:, 0], camera[:, 1], s=2, c='tab:orange', alpha=0.3, zorder=2,
                 label="camera points in the LiDAR's plane",
             )  # fmt: skip
         axes.plot([mounting.x], [mounting.y], marker='^', c='tab:blue', label='camera')
