@@ -47,6 +47,7 @@ def params_of(mounting: Mounting, lidar: Mounting = LIDAR) -> dict[str, float]:
         'lidar_x': lidar.x,
         'lidar_y': lidar.y,
         'lidar_height': lidar.height,
+        'lidar_roll': lidar.roll,
         'lidar_yaw': lidar.yaw,
     }
 
@@ -110,6 +111,12 @@ CASES = {
     'LiDAR off the origin and turned': (
         Mounting(0.20, 0.06, 0.42, DEG(1.5), DEG(18.0), DEG(4.0)),
         Mounting(0.08, -0.04, 0.28, 0.0, 0.0, DEG(90.0)),
+        NOMINAL,
+        False,
+    ),
+    'LiDAR upside down, turned back': (
+        Mounting(0.12, 0.03, 0.46, DEG(-1.0), DEG(21.0), DEG(-3.0)),
+        Mounting(-0.05, 0.0, 0.33, math.pi, 0.0, DEG(180.0)),
         NOMINAL,
         False,
     ),

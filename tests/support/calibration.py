@@ -137,9 +137,10 @@ class Room:
         increment = 2.0 * math.pi / self.readings
         angles = -math.pi + increment * np.arange(self.readings)
         lidar = self.lidar
-        ranges = ray_to_boxes(
-            (lidar.x, lidar.y), angles + lidar.yaw, lidar.height, list(self.boxes)
-        )
+        # A LiDAR mounted upside down (roll pi) sweeps the other way round in the base frame.
+        sense = -1.0 if math.isclose(abs(lidar.roll), math.pi) else 1.0
+        bearings = lidar.yaw + sense * angles
+        ranges = ray_to_boxes((lidar.x, lidar.y), bearings, lidar.height, list(self.boxes))
         ranges = ranges + rng.normal(0.0, self.lidar_noise, ranges.shape)
         ranges[ranges > self.lidar_range_max] = np.inf
         return Scan(
