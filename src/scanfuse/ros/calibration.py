@@ -1,7 +1,8 @@
 """`scanfuse calibrate`: the depth camera's mounting estimated from a recorded bag.
 
 Reads a bag as `scanfuse bag` does (rosbags' `AnyReader`, the same topic choice, TF and
-CameraInfo), pairs depth frames with the LiDAR scan nearest in stamp, and hands them to
+CameraInfo), pairs depth frames with the LiDAR scan nearest in stamp (leaving out, when
+the bag has odometry, the pairs between which the robot moved), and hands them to
 `scanfuse.calibrate.calibrate`. The LiDAR's mounting (TF, else the `lidar_*` parameters) is
 trusted; the camera's (TF, else the `camera_*` parameters) is only the starting point.
 `save_calibration` writes the parameter snippet, the numbers as JSON and the figure.
@@ -385,7 +386,7 @@ class _CalibrationJob(_BagJob):
         count = sum(c.msgcount for c in depth_connections)
         stride = max(1, math.ceil(count / max(1, max_frames)))
         scans: list[Scan] = []
-        images = []
+        images: list[DepthImage] = []
         index = 0
         connections = [*self.connections(self.scan_topic), *depth_connections]
         for connection, _, raw in self.messages(connections):
@@ -406,7 +407,7 @@ class _CalibrationJob(_BagJob):
         order = np.argsort(stamps)
         stamps = stamps[order]
         window = round(self.config.max_time_offset * 1e9)
-        pairs = []
+        pairs: list[tuple[DepthImage, Scan]] = []
         for image in images:
             at = int(np.searchsorted(stamps, image.stamp_ns))
             near = [i for i in (at - 1, at) if 0 <= i < stamps.size]
