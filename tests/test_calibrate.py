@@ -366,3 +366,14 @@ def test_the_command_turns_a_refusal_into_one_line_and_exit_code_1(tmp_path, cap
     assert 'error: no LiDAR scans (LaserScan) in bag' in error
     assert 'Traceback' not in error
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_round_room_around_the_camera_cannot_fix_yaw(tmp_path):
+    """A round wall centred on the camera (no boxes): turned about itself, the camera sees
+    the same wall, so its yaw is free."""
+    true = Mounting(0.15, -0.05, 0.40, DEG(2.0), DEG(15.0), DEG(6.0))
+    room = Room(true, boxes=(), round_wall=(true.x, true.y, 1.8))
+    bag = record(tmp_path, room)
+    fits_as_well = r'walls too few to fix yaw: moved .* along its weakest direction, .* as well'
+    with pytest.raises(CalibrationError, match=fits_as_well):
+        calibrate_bag(bag, config=config_of(NOMINAL))

@@ -20,8 +20,8 @@ wrong), and estimates the camera body's pose in the base frame:
    bearing and weighed by the depth noise at its distance) finds the rotation about z
    (yaw) and the shift (x, y) that lay them on that scan, from a few starting yaws around
    the given one; only x, y, yaw are free. The walls must fix all three: if the camera
-   sees one straight wall only, the match could slide along it, and `calibrate` says so
-   instead of returning a guess.
+   sees one straight wall only, the match could slide along it (a round wall about the
+   camera: turn), and `calibrate` says so instead of returning a guess.
 
 The depth's noise (`depth_noise` Z^2, 4 cm at 2 m for a RealSense D435) is weighed at the
 depth a point would have on the floor or on the LiDAR's line, never at its measured depth:
@@ -54,6 +54,10 @@ if TYPE_CHECKING:
 
     F64 = npt.NDArray[np.float64]
 
+# How far `_Matcher.check_profile` moves the estimate along its weakest direction (metres;
+# radians of yaw count as metres 1 m away), and how much worse the fit must get there.
+PROFILE_STEP = 0.08
+PROFILE_RISE = 100.0  # the truncated chi-square summed over the probe's points
 # Degrees the LiDAR's plane may tilt (upside down is level too).
 LEVEL_TOLERANCE = 2.0
 # Rotation by +90 deg in the plane: d(R(yaw) p)/d(yaw) = J R(yaw) p.
@@ -312,7 +316,8 @@ def calibrate(
     yaw, shift = matcher.coarse().best_start(given.yaw, (given.x, given.y))
     yaw, shift, _ = matcher.refine(yaw, shift, 4.0 * settings.inlier_distance)
     pairs = matcher.pairs(yaw, shift, settings.inlier_distance)
-    matcher.check_constraints(pairs)
+    weakest = matcher.check_constraints(pairs)
+    matcher.check_profile(yaw, shift, weakest)
     mounting = Mounting(float(shift[0]), float(shift[1]), floor.offset, roll, pitch, yaw)
     spread = matcher.spread(yaw, shift)
     given_cloud = [
@@ -721,9 +726,12 @@ class _Matcher:
             np.concatenate(positions),
         )
 
-    def refine(self, yaw: float, shift: F64, distance: float) -> tuple[float, F64, int]:
+    def refine(
+        self, yaw: float, shift: F64, distance: float, basis: F64 | None = None
+    ) -> tuple[float, F64, int]:
         """ICP from (yaw, shift): the pair distance shrinks from `distance` to
-        `inlier_distance`; returns the pose and the matched count at the end."""
+        `inlier_distance`; returns the pose and the matched count at the end. With `basis`
+        (3 x k, columns in (x, y, yaw)), only steps within its span are taken."""
         settings = self.settings
         for _ in range(60):
             pairs = self.pairs(yaw, shift, distance)
@@ -733,7 +741,12 @@ class _Matcher:
             normalised = np.abs(pairs.residuals) / pairs.sigmas
             weights = 1.0 / (pairs.sigmas**2 * np.maximum(1.0, normalised / 1.5))
             a = pairs.rows * weights[:, None]
-            step = np.linalg.lstsq(a.T @ pairs.rows, -(a.T @ pairs.residuals), rcond=None)[0]
+            information, gradient = a.T @ pairs.rows, -(a.T @ pairs.residuals)
+            if basis is None:
+                step = np.linalg.lstsq(information, gradient, rcond=None)[0]
+            else:
+                reduced = basis.T @ information @ basis
+                step = basis @ np.linalg.lstsq(reduced, basis.T @ gradient, rcond=None)[0]
             shift = shift + step[:2]
             yaw += float(step[2])
             small = abs(step[2]) < 1e-5 and float(np.hypot(step[0], step[1])) < 1e-4
@@ -756,6 +769,49 @@ class _Matcher:
             return (0.0, 0.0, 0.0)
         deviation = np.std(np.array(found), axis=0, ddof=1)
         return (float(deviation[0]), float(deviation[1]), float(deviation[2]))
+
+    def cost(self, yaw: float, shift: F64) -> float:
+        """Mean truncated squared residual in sigmas: min((r / sigma)^2, 9) per camera point,
+        9 for a point that pairs with nothing (lower is better)."""
+        pairs = self.pairs(yaw, shift, self.settings.inlier_distance)
+        total = sum(len(cloud) for cloud in self.clouds)
+        if not total:
+            return math.inf
+        squares = np.minimum((pairs.residuals / pairs.sigmas) ** 2, 9.0)
+        return float((squares.sum() + 9.0 * (total - pairs.count)) / total)
+
+    def check_profile(self, yaw: float, shift: F64, weakest: F64) -> None:
+        """Refuse when moving the estimate along its weakest direction barely worsens the
+        fit: started `PROFILE_STEP` along it (each way; yaw counted as the shift it makes
+        1 m away) and refined in the other two directions only, the match's `cost` summed
+        over its points (a truncated chi-square) must rise by `PROFILE_RISE` at least.
+        Walls that fix the direction make it rise several times that; one straight wall
+        (along it), or a round wall about the camera (in yaw), leave it where the noise
+        has it. The information matrix alone cannot tell the latter: the noise of the
+        fitted lines gives a round wall some yaw information.
+        """
+        probe = self.coarse(frames=3, most=400)
+        base = probe.cost(yaw, shift)
+        points = sum(len(cloud) for cloud in probe.clouds)
+        others = np.linalg.svd(weakest.reshape(1, 3))[2][1:].T  # 3 x 2, orthogonal to it
+        rises = []
+        for sign in (1.0, -1.0):
+            step = sign * PROFILE_STEP * weakest
+            found_yaw, found_shift, _ = probe.refine(
+                yaw + float(step[2]), shift + step[:2], 4.0 * self.settings.inlier_distance, others
+            )
+            rises.append((probe.cost(found_yaw, found_shift) - base) * points)
+        if min(rises) >= PROFILE_RISE:
+            return
+        what = 'yaw' if abs(weakest[2]) > math.hypot(weakest[0], weakest[1]) else 'x, y'
+        msg = (
+            f'walls too few to fix {what}: moved {PROFILE_STEP * 100:.0f} cm (or '
+            f'{math.degrees(PROFILE_STEP):.1f} deg) along its weakest direction, the match fits '
+            f'as well (its chi-square rises by {min(rises):.0f} only, over {points} points); '
+            'record facing a corner of a room, or put a box taller than the LiDAR plane in '
+            'view of both'
+        )
+        raise CalibrationError(msg)
 
     def best_start(self, yaw: float, shift: tuple[float, float]) -> tuple[float, F64]:
         """The ICP result that matches the most points, of starts around the given yaw."""
@@ -785,8 +841,9 @@ class _Matcher:
             raise CalibrationError(msg)
         return best[1], best[2]
 
-    def check_constraints(self, pairs: _Pairs) -> None:
-        """Refuse when the matched walls leave a direction of (x, y, yaw) nearly free.
+    def check_constraints(self, pairs: _Pairs) -> F64:
+        """Refuse when the matched walls leave a direction of (x, y, yaw) nearly free; the
+        weakest direction (unit, yaw counted as the shift it makes 1 m away) otherwise.
 
         The information matrix of the match (yaw weighed as the shift it makes 1 m away),
         per metre of wall seen: its least eigenvalue is the share of the walls that pin the
@@ -806,9 +863,9 @@ class _Matcher:
         weight = 1.0 / counts[cell]
         information = (rows * weight[:, None]).T @ rows / max(float(weight.sum()), 1e-12)
         values, vectors = np.linalg.eigh(information)
+        weak: F64 = vectors[:, 0]
         if values[0] >= self.settings.min_constraint * max(float(values[-1]), 1e-12):
-            return
-        weak = vectors[:, 0]
+            return weak
         if abs(weak[2]) > math.hypot(weak[0], weak[1]):
             what = 'walls too few to fix yaw'
         else:

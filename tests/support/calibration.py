@@ -37,17 +37,20 @@ from scanfuse.ros.messages import (
     typestore,
 )
 from scanfuse.scan import Scan
-from scanfuse.transforms import BODY_TO_OPTICAL, Transform
-from tests.support.render import Bounds, box_depth, millimetres
+from scanfuse.transforms import BODY_TO_OPTICAL
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+
+    from scanfuse.transforms import Transform
+from tests.support.render import Bounds, box_depth, millimetres
 
 NANOSECONDS = 1_000_000_000
 WALL = 0.2
 ROOM = (-1.5, 2.2, -1.3, 1.6)  # x_min, x_max, y_min, y_max of the free floor
 PILLAR: Bounds = (1.2, 1.45, 0.3, 0.55, 0.0, 0.8)
 LOW_BOX: Bounds = (1.0, 1.3, -0.5, -0.2, 0.0, 0.1)
+Circle = tuple[float, float, float]  # centre x, y and radius, metres
 LIDAR = Mounting(0.0, 0.0, 0.30, 0.0, 0.0, 0.0)  # base_link -> laser: 0.3 m up, level
 
 
@@ -84,6 +87,31 @@ def ray_to_boxes(
     return ranges
 
 
+def round_wall_depth(camera: CameraModel, optical_pose: Transform, wall: Circle) -> np.ndarray:
+    """Depth along the optical axis (metres, inf: none) of the inside of a vertical round
+    wall (centre x, y and radius, base frame) seen from inside: where a ray leaves the
+    circle, x^2 + y^2 = r^2 solved for the far root."""
+    x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
+    origin = np.asarray(optical_pose.translation)
+    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1) @ optical_pose.rotation_matrix.T
+    ox, oy = origin[0] - wall[0], origin[1] - wall[1]
+    a = rays[..., 0] ** 2 + rays[..., 1] ** 2
+    b = ox * rays[..., 0] + oy * rays[..., 1]
+    c = ox * ox + oy * oy - wall[2] ** 2
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (-b + np.sqrt(b * b - a * c)) / a  # per unit of the optical z: the depth itself
+    return np.where(np.isfinite(t) & (t > 0.0), t, np.inf)
+
+
+def ray_out_of_circle(origin: tuple[float, float], angles: np.ndarray, wall: Circle) -> np.ndarray:
+    """Distance along horizontal rays from `origin`, inside the circle, to where they leave
+    it."""
+    dx, dy = np.cos(angles), np.sin(angles)
+    ox, oy = origin[0] - wall[0], origin[1] - wall[1]
+    b = ox * dx + oy * dy
+    return -b + np.sqrt(b * b - (ox * ox + oy * oy - wall[2] ** 2))
+
+
 @dataclass(frozen=True)
 class Room:
     """A recording of the room: the true mounting, the sensors, the timing."""
@@ -104,6 +132,7 @@ class Room:
     boxes: tuple[Bounds, ...] = field(default_factory=lambda: tuple(room_boxes()))
     start_ns: int = 1_700_000_000 * NANOSECONDS
     metres: bool = False  # depth as 32FC1 metres (NaN: none), not 16UC1 millimetres
+    round_wall: Circle | None = None  # a round room's wall (centre x, y, radius) as well
 
     @property
     def camera(self) -> CameraModel:
@@ -126,6 +155,9 @@ class Room:
 
     def depth_mm(self, rng: np.random.Generator) -> np.ndarray:
         depth = box_depth(self.camera, self.mounting.optical, list(self.boxes))
+        if self.round_wall is not None:
+            round_wall = round_wall_depth(self.camera, self.mounting.optical, self.round_wall)
+            depth = np.minimum(depth, round_wall)
         noise = rng.normal(0.0, 1.0, depth.shape)
         finite = np.isfinite(depth)
         noisy = np.where(
@@ -141,6 +173,9 @@ class Room:
         sense = -1.0 if math.isclose(abs(lidar.roll), math.pi) else 1.0
         bearings = lidar.yaw + sense * angles
         ranges = ray_to_boxes((lidar.x, lidar.y), bearings, lidar.height, list(self.boxes))
+        if self.round_wall is not None:
+            round_wall = ray_out_of_circle((lidar.x, lidar.y), bearings, self.round_wall)
+            ranges = np.minimum(ranges, round_wall)
         ranges = ranges + rng.normal(0.0, self.lidar_noise, ranges.shape)
         ranges[ranges > self.lidar_range_max] = np.inf
         return Scan(
