@@ -16,6 +16,7 @@ if TYPE_CHECKING:
     from scanfuse.config import FusionConfig, Method, Resampler
     from scanfuse.errors import (
         BagError,
+        CalibrationError,
         ConfigError,
         DepthEncodingError,
         InputError,
@@ -31,6 +32,7 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 _HOMES = {
     'AngleGrid': 'scanfuse.scan',
     'BagError': 'scanfuse.errors',
+    'CalibrationError': 'scanfuse.errors',
     'CameraModel': 'scanfuse.camera',
     'ConfigError': 'scanfuse.errors',
     'DepthEncodingError': 'scanfuse.errors',
@@ -51,6 +53,7 @@ _HOMES = {
 __all__ = [
     'AngleGrid',
     'BagError',
+    'CalibrationError',
     'CameraModel',
     'ConfigError',
     'DepthEncodingError',

@@ -130,6 +130,46 @@ def bag(
 
 
 @app.command()
+def calibrate(
+    input_bag: Annotated[
+        Path,
+        typer.Argument(metavar='BAG', help='ROS 2 bag (folder, .db3, .mcap) or ROS 1 .bag'),
+    ],
+    params: Annotated[
+        Path | None,
+        typer.Option(
+            '--params',
+            help='parameter file: the LiDAR mounting and the camera mounting to start from',
+        ),
+    ] = None,
+    out: Annotated[
+        Path, typer.Option('--out', help='folder for calibration.yaml, .json and .png')
+    ] = Path('results/calibrate'),
+    scan: Annotated[str | None, typer.Option('--scan', help='LaserScan topic')] = None,
+    depth: Annotated[str | None, typer.Option('--depth', help='depth Image topic')] = None,
+    camera_info: Annotated[
+        str | None, typer.Option('--camera-info', help='CameraInfo topic of the depth image')
+    ] = None,
+) -> None:
+    """Estimate the depth camera's mounting (floor: height, pitch, roll; LiDAR: yaw, x, y)."""
+    from scanfuse.config import FusionConfig  # noqa: PLC0415
+    from scanfuse.ros.calibration import calibrate_bag, save_calibration  # noqa: PLC0415
+
+    config = FusionConfig.from_ros_params(params) if params else FusionConfig()
+    found = calibrate_bag(
+        input_bag, config=config, scan_topic=scan, depth_topic=depth, camera_info_topic=camera_info
+    )
+    output = Console()
+    for table in found.tables():
+        output.print(table)
+    typer.echo(found.parameters_yaml(), nl=False)
+    for line in found.commands():
+        typer.echo(line)
+    written = save_calibration(found, out)
+    output.print(f'written: {", ".join(str(path) for path in written)}')
+
+
+@app.command()
 def params(
     output: Annotated[
         Path | None, typer.Option('--output', help='write the table here instead of printing it')

@@ -29,3 +29,7 @@ class TransformError(ScanfuseError):
 
 class BagError(ScanfuseError):
     """A bag cannot be read or written."""
+
+
+class CalibrationError(ScanfuseError):
+    """The recording cannot fix the camera's mounting (too little floor, too few walls)."""

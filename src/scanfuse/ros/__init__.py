@@ -2,6 +2,7 @@
 
 from scanfuse.frames import StampedTransform, TransformStore
 from scanfuse.ros.bag import BagReport, Storage, TopicChoice, fuse_bag
+from scanfuse.ros.calibration import BagCalibration, calibrate_bag
 from scanfuse.ros.messages import (
     DepthImage,
     Distro,
@@ -9,6 +10,7 @@ from scanfuse.ros.messages import (
 )
 
 __all__ = [
+    'BagCalibration',
     'BagReport',
     'DepthImage',
     'Distro',
@@ -16,6 +18,7 @@ __all__ = [
     'Storage',
     'TopicChoice',
     'TransformStore',
+    'calibrate_bag',
     'fuse_bag',
     'typestore',
 ]
