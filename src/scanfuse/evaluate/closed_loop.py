@@ -61,6 +61,7 @@ if TYPE_CHECKING:
         Contact,
         Controller,
         DepthFrame,
+        ImuSample,
         LidarFrame,
         Simulation,
         StateSample,
@@ -419,6 +420,7 @@ class DriveLog:
     frames: list[FrameRecord] = field(default_factory=list)
     contacts: list[Contact] = field(default_factory=list)
     true_path: list[tuple[float, float]] = field(default_factory=list)
+    imu: list[ImuSample] = field(default_factory=list)
 
 
 Released = Callable[['MethodStream', 'LidarFrame', 'Scan'], None]
@@ -477,6 +479,11 @@ class StreamFeed:
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
         del stamp_ns  # every contact carries its own stamp
         self.log.contacts.extend(contacts)
+
+    def on_imu(self, sample: ImuSample) -> None:
+        """The IMU's samples: kept (`DriveLog.imu`); the stream takes no IMU on this branch yet
+        (issue 25's `imu_topic` is being built in the stream)."""
+        self.log.imu.append(sample)
 
     def finish(self) -> None:
         for stream in self.streams:

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
     from scanfuse.sim.errors import SimError
     from scanfuse.sim.recording import RecordSummary, record, static_transforms
-    from scanfuse.sim.robot import RobotSpec, WheelOdometry
+    from scanfuse.sim.robot import RobotSpec, Suspension, WheelOdometry
     from scanfuse.sim.sensors import (
         CAMERAS,
         LIDARS,
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
         Contact,
         Controller,
         DepthFrame,
+        ImuSample,
         LidarFrame,
         Observation,
         SimConfig,
@@ -42,6 +43,7 @@ if TYPE_CHECKING:
         KINDS,
         WORLDS,
         Drop,
+        Ground,
         Obstacle,
         Pose2D,
         World,
@@ -60,6 +62,9 @@ _WHERE = {
     'DepthNoise': 'sensors',
     'DROP_KINDS': 'worlds',
     'Drop': 'worlds',
+    'Ground': 'worlds',
+    'ImuSample': 'simulation',
+    'Suspension': 'robot',
     'FusedController': 'drive',
     'KINDS': 'worlds',
     'LIDARS': 'sensors',
@@ -119,6 +124,8 @@ __all__ = [
     'DepthNoise',
     'Drop',
     'FusedController',
+    'Ground',
+    'ImuSample',
     'Lap',
     'LidarFrame',
     'LidarNoise',
@@ -134,6 +141,7 @@ __all__ = [
     'Simulation',
     'StateSample',
     'Straight',
+    'Suspension',
     'Trace',
     'TruthScanner',
     'WheelOdometry',
