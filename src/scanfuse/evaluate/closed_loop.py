@@ -411,6 +411,7 @@ class TrialOutcome:
     fell: bool = False  # the base left the floor plane (a drop-off)
     fall_time: float = float('nan')  # simulated seconds at the first fallen state sample
     reversing_contact: bool = False  # the first contact came while driving backwards
+    peak_pitch: float = float('nan')  # degrees: the largest |pitch| the IMU measured
 
 
 @dataclass
@@ -583,8 +584,16 @@ def drive(
             (sim.fell_ns - log_start_ns(sim)) / 1e9 if sim.fell_ns is not None else float('nan')
         ),
         reversing_contact=bool(contact_v) and contact_v[0] < 0.0,
+        peak_pitch=peak_pitch(log.imu),
     )
     return outcome, log
+
+
+def peak_pitch(samples: Sequence[ImuSample]) -> float:
+    """The largest |pitch| the IMU measured, degrees (NaN without samples)."""
+    if not samples:
+        return math.nan
+    return math.degrees(max(abs(sample.roll_pitch[1]) for sample in samples))
 
 
 # ---------------------------------------------------------------- turning trials

@@ -172,7 +172,9 @@ class Ground:
     def __post_init__(self) -> None:
         x_min, x_max, y_min, y_max = self.rectangle
         if not (x_max > x_min and y_max > y_min):
-            msg = f'ground {self.name!r} needs x_min < x_max and y_min < y_max, got {self.rectangle}'
+            msg = (
+                f'ground {self.name!r} needs x_min < x_max and y_min < y_max, got {self.rectangle}'
+            )
             raise SimError(msg)
         if self.kind not in GROUND_KINDS:
             msg = f'ground {self.name!r} kind {self.kind!r} is not one of {", ".join(GROUND_KINDS)}'
@@ -205,10 +207,7 @@ class Ground:
 
     def mjcf(self, rgba: str) -> str:
         """A convex mesh geom (its asset inline through `asset`) named after the piece."""
-        return (
-            f'<geom name="{self.name}" type="mesh" mesh="{self.name}_mesh" pos="0 0 0" '
-            f'{rgba}/>'
-        )
+        return f'<geom name="{self.name}" type="mesh" mesh="{self.name}_mesh" pos="0 0 0" {rgba}/>'
 
     def asset(self) -> str:
         x_min, x_max, y_min, y_max = self.rectangle
@@ -824,26 +823,28 @@ def _terrain_box(
     return box_on_ground(name, pieces, (centre[0] + dx, centre[1] + dy), half, height)
 
 
-def _side_wall(name: str, x: tuple[float, float], y: tuple[float, float], bottom: float = 0.0) -> Obstacle:
+def _side_wall(name: str, x: tuple[float, float], y: tuple[float, float]) -> Obstacle:
     """A solid wall block filling x by y (a ramp's side)."""
     return box(
         name,
         'wall',
         ((x[0] + x[1]) / 2, (y[0] + y[1]) / 2),
         ((x[1] - x[0]) / 2, (y[1] - y[0]) / 2),
-        (bottom, WALL_HEIGHT),
+        (0.0, WALL_HEIGHT),
         rgba='0.9 0.9 0.85 1',
     )
 
 
-def ramp_world(seed: int = 0, *, grade: float = 12.0, rise: float = RAMP_RISE) -> World:
+def ramp_world(
+    seed: int = 0, *, grade: float = 12.0, rise: float = RAMP_RISE, blocked: bool = False
+) -> World:
     """A ramp of 1:`grade` up to a platform and down again, between walls (a corridor between
     two wings), `RAMP_WIDTH` wide, its foot 1.6 m ahead of the robot.
 
     Low boxes (6-12 cm above the ground under them, seeded heights and shifts): one on the up
     ramp and one on the platform, each against a side wall (the passage beside it is 0.85 m
     or more); one on the floor beside the ramp's mouth, one in the approach, one past the
-    down ramp's foot.
+    down ramp's foot. `blocked`: the platform's box stands on the ramp's centre line instead.
     """
     rng = np.random.default_rng(seed + 11000)
     half = RAMP_WIDTH / 2
@@ -851,16 +852,20 @@ def ramp_world(seed: int = 0, *, grade: float = 12.0, rise: float = RAMP_RISE) -
     foot, end = pieces[0].rectangle[0], pieces[-1].rectangle[1]
     bounds = (-1.0, end + RUN_OUT, -TERRAIN_HALF_WIDTH, TERRAIN_HALF_WIDTH)
     obstacles = room_walls(bounds)
-    for sign, side in ((1.0, 'left'), (-1.0, 'right')):
-        y = tuple(sorted((sign * half, sign * TERRAIN_HALF_WIDTH)))
-        obstacles.append(_side_wall(f'ramp_wall_{side}', (foot, end), (y[0], y[1])))
+    for sign, wall in ((1.0, 'left'), (-1.0, 'right')):
+        low, high = sorted((sign * half, sign * TERRAIN_HALF_WIDTH))
+        obstacles.append(_side_wall(f'ramp_wall_{wall}', (foot, end), (low, high)))
     side = 1.0 if rng.uniform() < 0.5 else -1.0
     up, platform = pieces[0].rectangle, pieces[1].rectangle
     size = (0.15, 0.1)
     obstacles += [
         _terrain_box(rng, 'box_on_ramp', pieces, ((up[0] + up[1]) / 2, side * 0.46), size),
         _terrain_box(
-            rng, 'box_on_platform', pieces, ((platform[0] + platform[1]) / 2, -side * 0.46), size
+            rng,
+            'box_on_platform',
+            pieces,
+            ((platform[0] + platform[1]) / 2, 0.0 if blocked else -side * 0.46),
+            size,
         ),
         _terrain_box(rng, 'box_beside_ramp', pieces, (foot - 0.35, side * 0.95), size),
         _terrain_box(rng, 'box_approach', pieces, (0.75, -side * 0.55), size),
@@ -903,10 +908,8 @@ def ramp_ledge_world(
     yard = Drop('ledge', 'ledge', (foot, end, -TERRAIN_HALF_WIDTH, -half), depth)
     obstacles = room_walls(bounds, bottom=-depth)
     obstacles.append(_side_wall('ramp_wall_left', (foot, end), (half, TERRAIN_HALF_WIDTH)))
-    platform = pieces[1].rectangle
-    obstacles.append(
-        _terrain_box(rng, 'box_on_platform', pieces, ((platform[0] + platform[1]) / 2, 0.46), (0.15, 0.1))
-    )
+    middle = (pieces[1].rectangle[0] + pieces[1].rectangle[1]) / 2
+    obstacles.append(_terrain_box(rng, 'box_on_platform', pieces, (middle, 0.46), (0.15, 0.1)))
     return World(
         'ramp-ledge',
         seed,
