@@ -243,7 +243,8 @@ def evaluate(
     worlds: Annotated[
         str | None,
         typer.Option(
-            help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole,memory'
+            help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole,memory,'
+            'terrain (ramps, a ledge beside a ramp, sills, braking, a mounting off)'
         ),
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
