@@ -1,0 +1,132 @@
+"""Terrain trials: seeded families, mounting errors injected, a quick run end to end."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+
+from scanfuse.errors import ConfigError
+from scanfuse.evaluate.cli import parse_worlds
+from scanfuse.evaluate.results import EvaluationResult
+from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, terrain_simulation
+from scanfuse.evaluate.terrain_trials import (
+    BRAKE_GAP,
+    TERRAIN_FAMILIES,
+    terrain_specs,
+    terrain_trial,
+)
+from scanfuse.evaluate.write import run_evaluation
+from scanfuse.sim.robot import SPRUNG
+from scanfuse.sim.worlds import TERRAIN_WORLDS
+
+
+def test_the_full_run_holds_at_least_30_seeded_terrain_trials():
+    settings = EvaluationSettings()
+    assert 'terrain' in settings.worlds
+    evaluation = Evaluation(settings)
+    assert len(evaluation.terrain_specs) >= 30
+    assert {spec.world for spec in evaluation.terrain_specs} == set(TERRAIN_FAMILIES)
+    # Seeded variants differ: the boxes move.
+    first, second = (terrain_trial('terrain-ramp-12', seed).world for seed in (0, 1))
+    boxes = [
+        [(o.name, o.footprint.mean(axis=0).tolist(), o.z_max) for o in world.obstacles]
+        for world in (first, second)
+    ]
+    assert boxes[0] != boxes[1]
+    # `obstacle` with the ground estimate off is a method of its own, driven on terrain.
+    assert 'obstacle-no-ground' in settings.terrain_methods
+
+
+def test_ramp_goals_lie_past_the_ramp_and_brake_goals_short_of_the_box():
+    for name in ('terrain-ramp-12', 'terrain-ramp-8', 'terrain-ledge', 'terrain-mount'):
+        trial = terrain_trial(name, 0)
+        end = max(piece.rectangle[1] for piece in trial.world.ground)
+        assert trial.goal[0] > end
+    for seed in (0, 1):
+        trial = terrain_trial('terrain-brake', seed)
+        assert trial.brake
+        # The stop point: half the allowed gap short of the box, the robot's radius before.
+        assert trial.box_face - trial.goal[0] == pytest.approx(SPRUNG.body_radius + BRAKE_GAP / 2)
+    # Odd seeds brake on a 1:12 ramp's platform.
+    assert terrain_trial('terrain-brake', 1).world.ground
+
+
+@pytest.mark.parametrize(
+    ('seed', 'pitch', 'height'),
+    [(0, 2.0, -0.03), (1, -2.0, -0.03), (2, 2.0, 0.03), (3, -2.0, 0.03)],
+)
+def test_the_mount_trials_camera_is_off_what_its_parameters_say(seed, pitch, height):
+    spec = terrain_specs(('terrain-mount',), 4)[seed]
+    sim, described, transforms = terrain_simulation(spec, EvaluationSettings.quick())
+    try:
+        simulated = sim.robot
+        # The parameters (and /tf_static) say the sprung robot's mounting ...
+        assert described.camera_pitch == pytest.approx(SPRUNG.camera_pitch)
+        assert described.camera_height == pytest.approx(SPRUNG.camera_height)
+        camera_link = next(t for t in transforms if t.child == 'camera_link')
+        assert camera_link.translation[2] == pytest.approx(SPRUNG.camera_height)
+        # ... the simulated camera sits 2 degrees and 3 cm off it.
+        assert math.degrees(simulated.camera_pitch - described.camera_pitch) == pytest.approx(pitch)
+        assert simulated.camera_height - described.camera_height == pytest.approx(height)
+        assert simulated.suspension == SPRUNG.suspension
+    finally:
+        sim.close()
+
+
+def test_terrain_names_are_checked():
+    assert parse_worlds('terrain,ledge') == ('terrain', 'ledge')
+    # The terrain worlds are the terrain trials' own, not evaluation worlds of their own.
+    for name in TERRAIN_WORLDS:
+        with pytest.raises(ConfigError, match=rf'unknown world\(s\) {name}; choose from'):
+            parse_worlds(name)
+    with pytest.raises(ConfigError, match=r"unknown terrain trial 'terrain-moon'; choose from"):
+        Evaluation(EvaluationSettings.quick(terrain=('terrain-moon',)))
+    with pytest.raises(ConfigError, match=r"unknown terrain method 'sonar'; choose from lidar"):
+        Evaluation(EvaluationSettings.quick(terrain_methods=('sonar',)))
+
+
+def test_a_quick_terrain_evaluation_runs_end_to_end(tmp_path):
+    # Braking hard before a low box on a flat floor (seed 0): the fused robot stops short of
+    # it; the LiDAR alone cannot see it (6-12 cm, under its plane) and drives into it.
+    settings = EvaluationSettings.quick(
+        worlds=('terrain',),
+        terrain=('terrain-brake',),
+        terrain_methods=('lidar', 'obstacle'),
+        methods=('lidar', 'obstacle', 'obstacle-no-ground'),
+        closed_loop_methods=(),
+        turning=(),
+        amr=(),
+    )
+    result = run_evaluation(tmp_path, settings)
+    assert {o.method for o in result.terrain_trials} == {'lidar', 'obstacle'}
+    fused = next(o for o in result.terrain_trials if o.method == 'obstacle')
+    lidar = next(o for o in result.terrain_trials if o.method == 'lidar')
+    assert not fused.collided
+    assert fused.reached
+    assert 0.0 <= fused.final_distance <= BRAKE_GAP
+    assert lidar.collided
+    assert lidar.first_contact_kind == 'low_box'
+    # The body pitched braking (and setting off): the IMU saw 1.5-3 degrees.
+    assert 1.5 <= fused.peak_pitch <= 3.0
+    # Every scored method has terrain scan metrics; the drivers have their closed loop.
+    assert set(result.terrain) == {'lidar', 'obstacle', 'obstacle-no-ground'}
+    assert result.terrain['obstacle'].scan.slots > 0
+    assert result.terrain['obstacle-no-ground'].closed_loop is None
+    loop = result.terrain['obstacle'].closed_loop
+    assert loop is not None
+    assert (loop.trials, loop.collisions, loop.falls, loop.reached) == (1, 0, 0, 1)
+    # Not on a slope (a flat corridor): no scan counts as on one.
+    assert result.terrain['obstacle'].scan_slopes.slots == 0
+    # Written, and read back the same.
+    report = (tmp_path / 'report.md').read_text(encoding='utf-8')
+    assert '## Terrain' in report
+    assert 'terrain-brake-0' in report
+    assert (tmp_path / 'terrain.png').is_file()
+    loaded = EvaluationResult.load(tmp_path / 'results.json')
+    assert loaded.terrain['obstacle'].closed_loop == loop
+    assert [o.trial for o in loaded.terrain_trials] == [o.trial for o in result.terrain_trials]
+    assert replace(loaded.terrain_trials[0]).peak_pitch == pytest.approx(
+        result.terrain_trials[0].peak_pitch
+    )
