@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
+from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.evaluate.cli import parse_worlds
+from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.results import EvaluationResult
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, terrain_simulation
 from scanfuse.evaluate.terrain_trials import (
@@ -18,8 +21,12 @@ from scanfuse.evaluate.terrain_trials import (
     terrain_trial,
 )
 from scanfuse.evaluate.write import run_evaluation
+from scanfuse.scan import Scan
 from scanfuse.sim.robot import SPRUNG
-from scanfuse.sim.worlds import TERRAIN_WORLDS
+from scanfuse.sim.sensors import camera_profile, lidar_profile
+from scanfuse.sim.simulation import LidarFrame
+from scanfuse.sim.worlds import TERRAIN_WORLDS, Ground, Pose2D, box_on_ground
+from scanfuse.transforms import Extrinsics
 
 
 def test_the_full_run_holds_at_least_30_seeded_terrain_trials():
@@ -130,3 +137,41 @@ def test_a_quick_terrain_evaluation_runs_end_to_end(tmp_path):
     assert replace(loaded.terrain_trials[0]).peak_pitch == pytest.approx(
         result.terrain_trials[0].peak_pitch
     )
+
+
+def test_slot_truth_on_a_platform_the_lidars_plane_lies_higher():
+    # A platform 0.15 m high from x = 1 to 4; a box on it 0.15-0.40 m in the world's z (0.25 m
+    # above the platform), its near face at x = 2.5. From the floor the LiDAR's plane (0.30 m)
+    # crosses the box: the plane sees it, no low obstacle. From the platform (LiDAR at 0.45 m)
+    # the plane passes over it: it is a low obstacle, seen by the slab alone.
+    platform = Ground('platform', 'platform', (1.0, 4.0, -1.0, 1.0), 0.15, 0.15)
+    on_top = box_on_ground('box', (platform,), (2.65, 0.0), (0.15, 0.2), 0.25)
+    assert (on_top.z_min, on_top.z_max, on_top.ground) == pytest.approx((0.15, 0.40, 0.15))
+    grid = lidar_profile('rplidar-a2').grid
+    builder = SlotTruthBuilder(
+        (on_top,),
+        grid,
+        min_obstacle_height=0.03,
+        max_obstacle_height=0.5,
+        range_max=12.0,
+        camera=camera_profile('d435').model(640, 480),
+        extrinsics=Extrinsics.from_config(FusionConfig(camera_x=0.12, lidar_height=0.30)),
+    )
+    ahead = int(np.argmin(np.abs(grid.angles())))
+    scan = Scan(
+        angle_min=grid.angle_min,
+        angle_max=grid.angle_min + grid.angle_increment * (grid.count - 1),
+        angle_increment=grid.angle_increment,
+        range_min=0.15,
+        range_max=12.0,
+        ranges=np.full(grid.count, np.inf, dtype=np.float32),
+    )
+    floor = builder.build(LidarFrame(0, scan, scan, Pose2D(0.5, 0.0, 0.0), (0.5, 0.0, 0.30)))
+    assert floor.truth[ahead] == pytest.approx(2.0, abs=1e-6)
+    assert floor.plane[ahead] == pytest.approx(2.0, abs=1e-6)
+    on_platform = builder.build(LidarFrame(0, scan, scan, Pose2D(1.5, 0.0, 0.0), (1.5, 0.0, 0.45)))
+    assert on_platform.truth[ahead] == pytest.approx(1.0, abs=1e-6)
+    assert math.isinf(on_platform.plane[ahead])
+    # The box's top, 0.40 m, is 0.05 m below the LiDAR there: the camera (0.60 m up,
+    # pitched 20 degrees down) sees it 1 m ahead.
+    assert on_platform.in_view[ahead]
