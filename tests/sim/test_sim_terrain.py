@@ -285,5 +285,7 @@ def test_the_imus_pitch_matches_the_bodys_within_its_noise():
 def test_suspension_is_checked():
     with pytest.raises(SimError, match=r'suspension needs stiffness > 0'):
         Suspension(stiffness=0.0)
+    with pytest.raises(SimError, match=r'wheel_preload in \(0, 0.05\) m, got 1500.0, 200.0, 0.1'):
+        Suspension(wheel_preload=0.1)
     with pytest.raises(SimError, match=r'imu_rate 2000.0 Hz must be in \[0, 1000\]'):
         SimConfig(imu_rate=2000.0)

@@ -9,9 +9,10 @@ Two robots (`ROBOTS`): `default`, round, one 360-degree LiDAR and one front dept
 facing forward-left, rear-right facing backward-right, both at the default LiDAR's height,
 above the low obstacles), a front and a rear depth camera and a 3D LiDAR on a mast
 (PointCloud2), named and on the topics of examples/scanfuse_multi.yaml; `sprung`, the default
-robot on a compliant suspension (`Suspension`): its casters ride on springs, so the body
-pitches nose-down when it brakes, nose-up when it accelerates, and rocks over bumps, as a
-real robot's does (1.5-3 degrees braking hard from its cruising speed).
+robot on a suspension (`Suspension`): its body sits on a sprung pitch hinge over a running
+gear whose drive wheels ride on preloaded springs, so the body pitches nose-down when it
+brakes, nose-up when it sets off, and rocks over a ramp's foot and a sill, as a real robot's
+does (1.5-3 degrees braking hard from its cruising speed).
 
 Every robot carries an IMU at base_link's origin (site `robot/imu`: MuJoCo's gyro and
 accelerometer there; the orientation is the base's).
@@ -96,7 +97,7 @@ class Suspension:
     The hinge's axis is base_link's y axis through its origin; `stiffness` (N m/rad) and
     `damping` (N m s/rad) hold the body level, `travel` (radians) limits its pitch either way.
     Braking pitches the body nose-down on its hinge and the running gear on its wheel springs
-    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.3 degrees at
+    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.5 degrees at
     the peak braking hard (the wheels' torque limit) from 0.35 m/s, about as much nose-up
     setting off. A rigid robot with two casters cannot climb onto a ramp: the caster ahead
     of the wheels rides up the ramp's foot and lifts them off the floor.
@@ -117,6 +118,13 @@ class Suspension:
             msg = (
                 f'suspension needs stiffness > 0 N m/rad, damping >= 0 N m s/rad and travel '
                 f'in (0, 0.5) rad, got {self.stiffness}, {self.damping}, {self.travel}'
+            )
+            raise SimError(msg)
+        wheels = (self.wheel_stiffness, self.wheel_damping, self.wheel_preload)
+        if not (wheels[0] > 0.0 and wheels[1] >= 0.0 and 0.0 < wheels[2] < 0.05):
+            msg = (
+                f'suspension needs wheel_stiffness > 0 N/m, wheel_damping >= 0 N s/m and '
+                f'wheel_preload in (0, 0.05) m, got {wheels[0]}, {wheels[1]}, {wheels[2]}'
             )
             raise SimError(msg)
 
@@ -159,7 +167,7 @@ class RobotSpec:
     rear_camera: Mount | None = None  # a second depth camera, the first's model and pitch
     lidar_model: str = 'rplidar-a2'  # the LiDAR profile it carries unless told otherwise
     cloud: CloudMount | None = None  # a 3D LiDAR (PointCloud2), the `cloud` profile of SimConfig
-    suspension: Suspension | None = None  # casters on springs (None: rigid casters)
+    suspension: Suspension | None = None  # a sprung body and wheels (None: one rigid body)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lidar_height < 3.0:
