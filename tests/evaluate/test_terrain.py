@@ -131,6 +131,7 @@ def test_a_quick_terrain_evaluation_runs_end_to_end(tmp_path):
     assert '## Terrain' in report
     assert 'terrain-brake-0' in report
     assert (tmp_path / 'terrain.png').is_file()
+    assert (tmp_path / 'terrain_pitch.png').is_file()
     loaded = EvaluationResult.load(tmp_path / 'results.json')
     assert loaded.terrain['obstacle'].closed_loop == loop
     assert [o.trial for o in loaded.terrain_trials] == [o.trial for o in result.terrain_trials]

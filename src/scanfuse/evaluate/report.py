@@ -602,6 +602,9 @@ def write_figures(evaluation: Evaluation, out: Path) -> list[str]:
     files.append(_bars_figure(evaluation, out).name)
     if evaluation.terrain_specs:
         files.append(_terrain_figure(evaluation, out).name)
+        if evaluation.terrain.pitch:
+            path = out / 'terrain_pitch.png'
+            files.append(figures.pitch_figure(evaluation.terrain.pitch, path).name)
     for label, costmaps in evaluation.costmaps.items():
         files.append(_costmap_figure(label, costmaps, out).name)
     for label, entry in evaluation.collision_logs.items():

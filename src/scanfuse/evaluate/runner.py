@@ -15,6 +15,7 @@ results. All of it in real sensor time (`scanfuse.sim.simulation`).
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
@@ -320,6 +321,9 @@ class TerrainTallies:
     drops: dict[str, DropTally] = field(default_factory=dict)
     slope_drops: dict[str, DropTally] = field(default_factory=dict)
     outcomes: list[TrialOutcome] = field(default_factory=list)
+    # The body's pitch over the scoring run of each family's first trial: times (s), pitch
+    # (degrees, positive nose-down) from the IMU, for the report's figure.
+    pitch: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
 
     @classmethod
     def of(cls, methods: Sequence[str]) -> TerrainTallies:
@@ -342,6 +346,8 @@ class TerrainTallies:
                 mine_drops[name].slots += drops.slots
                 mine_drops[name].false_drops += drops.false_drops
         self.outcomes += other.outcomes
+        for label, trace in other.pitch.items():
+            self.pitch.setdefault(label, trace)
 
 
 @dataclass
@@ -646,13 +652,19 @@ class Evaluation:
                     scorer.add(stream, frame, scan)
 
             if trial.brake:
-                outcome, _ = brake(
+                outcome, log = brake(
                     sim, spec, trial.box_face, driver, observers=observers, on_scan=on_scan
                 )
             else:
-                outcome, _ = drive(sim, spec, driver, observers=observers, on_scan=on_scan)
+                outcome, log = drive(sim, spec, driver, observers=observers, on_scan=on_scan)
             if scorer is not None:
                 scorer.close()
+                if spec.seed == 0 and log.imu:
+                    start = log.imu[0].stamp_ns
+                    self.terrain.pitch[spec.label] = (
+                        [(sample.stamp_ns - start) / 1e9 for sample in log.imu],
+                        [math.degrees(sample.roll_pitch[1]) for sample in log.imu],
+                    )
             self.terrain.outcomes.append(outcome)
         finally:
             sim.close()
