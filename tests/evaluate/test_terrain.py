@@ -92,6 +92,8 @@ def test_terrain_names_are_checked():
         Evaluation(EvaluationSettings.quick(terrain=('terrain-moon',)))
     with pytest.raises(ConfigError, match=r"unknown terrain method 'sonar'; choose from lidar"):
         Evaluation(EvaluationSettings.quick(terrain_methods=('sonar',)))
+    with pytest.raises(ConfigError, match=r"unknown terrain scored method 'sonar'; choose from"):
+        Evaluation(EvaluationSettings.quick(terrain_scored=('sonar',)))
 
 
 def test_a_quick_terrain_evaluation_runs_end_to_end(tmp_path):

@@ -66,6 +66,7 @@ from scanfuse.evaluate.results import (
 from scanfuse.evaluate.terrain_trials import (
     TERRAIN_FAMILIES,
     TERRAIN_METHODS,
+    TERRAIN_SCORED,
     brake,
     terrain_specs,
     terrain_trial,
@@ -137,6 +138,9 @@ class EvaluationSettings:
     terrain: tuple[str, ...] = tuple(TERRAIN_FAMILIES)
     terrain_trials: int = 5
     terrain_methods: tuple[str, ...] = TERRAIN_METHODS
+    # Scored on the terrain trials' scans, of `methods` (each scored method runs a stream, and
+    # a twin for false drops, through every trial: all of them would cost twice the time).
+    terrain_scored: tuple[str, ...] = TERRAIN_SCORED
     # A parameter file's ros__parameters (`--params`): the robot's mounting and slab, and
     # the base every method's configuration changes; empty: the simulated robot as built.
     params: dict[str, Any] = field(default_factory=dict)
@@ -395,6 +399,7 @@ class Evaluation:
             ('AMR method', settings.amr_methods, AMR_METHODS),
             ('terrain trial', settings.terrain, TERRAIN_FAMILIES),
             ('terrain method', settings.terrain_methods, METHODS),
+            ('terrain scored method', settings.terrain_scored, METHODS),
         ):
             _check_names(kind, names, known)
         self.settings = settings
@@ -901,7 +906,12 @@ class _Scorer:
         self.terrain = terrain
         self.world = sim.world
         camera = sim.camera
-        self.streams = [MethodStream(name, base, camera, transforms) for name in settings.methods]
+        scored = (
+            [name for name in settings.methods if name in settings.terrain_scored]
+            if terrain
+            else settings.methods
+        )
+        self.streams = [MethodStream(name, base, camera, transforms) for name in scored]
         self._names = {stream: stream.name for stream in self.streams}
         # On a world without drop-offs, each method that reports drops runs a twin with
         # detect_drops off on the same events: its scans tell the false drop slots.

@@ -63,7 +63,10 @@ if TYPE_CHECKING:
     from scanfuse.sim.simulation import LidarFrame, Simulation
 
 TERRAIN_TIME_LIMIT = 45.0  # simulated seconds: about 7 m over a ramp at up to 0.35 m/s
-TERRAIN_METHODS = ('lidar', 'obstacle', 'obstacle-no-ground')
+TERRAIN_METHODS = ('lidar', 'obstacle', 'obstacle-no-ground')  # they drive the trials
+# Scored on the terrain scans: the drivers, the instantaneous scan, the paper's low row and
+# depthimage_to_laserscan.
+TERRAIN_SCORED = ('lidar', 'row-low', 'd2l', 'obstacle', 'obstacle-no-ground', 'obstacle-no-memory')
 BRAKE_SPEED = 0.35  # m/s, the navigator's cruising speed
 BRAKE_TRIGGER = 0.35  # metres ahead of the footprint's front, in its path, that stop it
 BRAKE_GAP = 0.6  # metres: a stop farther than this short of the box was for nothing
