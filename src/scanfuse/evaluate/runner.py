@@ -1029,7 +1029,10 @@ class _Scorer:
             evaluation.snapshots[self.label] = Snapshot(self.label, frame, scans)
 
     def close(self) -> None:
-        """Add up what the streams did (every stream released every scan: none is lost)."""
+        """Add up what the streams did (every stream released every scan: none is lost); the
+        terrain trials' streams are not counted (only some methods score them)."""
+        if self.terrain:
+            return
         for stream in self._scored:
             counts = stream.counts
             if counts is None:
