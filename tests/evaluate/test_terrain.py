@@ -178,3 +178,32 @@ def test_slot_truth_on_a_platform_the_lidars_plane_lies_higher():
     # The box's top, 0.40 m, is 0.05 m below the LiDAR there: the camera (0.60 m up,
     # pitched 20 degrees down) sees it 1 m ahead.
     assert on_platform.in_view[ahead]
+
+
+@pytest.mark.parametrize('family', sorted(TERRAIN_FAMILIES))
+def test_every_full_run_variant_builds_with_its_start_and_goal_clear(family):
+    for spec in terrain_specs((family,), EvaluationSettings().terrain_trials):
+        trial = terrain_trial(spec.world, spec.seed)
+        world = trial.world
+        for point, clearance in (
+            ((world.start.x, world.start.y), SPRUNG.body_radius + 0.1),
+            (trial.goal, 0.0 if trial.brake else SPRUNG.body_radius),
+        ):
+            for obstacle in world.obstacles:
+                footprint = obstacle.footprint
+                nearest = np.min(np.hypot(*(footprint - np.asarray(point)).T))
+                inside = np.all(point >= footprint.min(axis=0)) and np.all(
+                    point <= footprint.max(axis=0)
+                )
+                assert nearest > clearance, (spec.label, obstacle.name)
+                assert not inside, (spec.label, obstacle.name)
+        x_min, x_max, y_min, y_max = world.bounds
+        assert x_min < trial.goal[0] < x_max
+        assert y_min < trial.goal[1] < y_max
+        # Every variant compiles in MuJoCo, the sprung robot settled at its start.
+        sim, _, _ = terrain_simulation(spec, EvaluationSettings.quick())
+        try:
+            assert sim.base_drop() == pytest.approx(0.0, abs=1e-9)
+            assert not sim.contacts()
+        finally:
+            sim.close()
