@@ -161,7 +161,7 @@ def test_the_sprung_robot_drives_up_the_ramp_its_base_rising_by_the_ramps_height
         assert sim.fell_ns is None
         assert not trace.contacts  # ramps are floor
         # Half way up the ramp the body is pitched nose-up by the ramp's angle and leans back
-        # on its springs by at most 1.5 degrees more (climbing, the wheels' torque and
+        # on its springs by at most 2.5 degrees more (climbing, the wheels' torque and
         # gravity pitch it back).
         on_ramp = [
             s
@@ -171,7 +171,7 @@ def test_the_sprung_robot_drives_up_the_ramp_its_base_rising_by_the_ramps_height
         x_, y_, z_, w_ = on_ramp[0].orientation
         pitch = math.degrees(math.asin(2 * (w_ * y_ - z_ * x_)))
         ramp = math.degrees(math.atan(1 / grade))
-        assert -ramp - 1.5 < pitch < -ramp + 0.3
+        assert -ramp - 2.5 < pitch < -ramp + 0.3
     finally:
         sim.close()
 
@@ -285,7 +285,7 @@ def test_the_imus_pitch_matches_the_bodys_within_its_noise():
 def test_suspension_is_checked():
     with pytest.raises(SimError, match=r'suspension needs stiffness > 0'):
         Suspension(stiffness=0.0)
-    with pytest.raises(SimError, match=r'wheel_preload in \(0, 0.05\) m, got 1500.0, 200.0, 0.1'):
+    with pytest.raises(SimError, match=r'wheel_preload in \(0, 0.05\) m, got 2500.0, 300.0, 0.1'):
         Suspension(wheel_preload=0.1)
     with pytest.raises(SimError, match=r'imu_rate 2000.0 Hz must be in \[0, 1000\]'):
         SimConfig(imu_rate=2000.0)

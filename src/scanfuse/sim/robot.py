@@ -97,21 +97,23 @@ class Suspension:
     The hinge's axis is base_link's y axis through its origin; `stiffness` (N m/rad) and
     `damping` (N m s/rad) hold the body level, `travel` (radians) limits its pitch either way.
     Braking pitches the body nose-down on its hinge and the running gear on its wheel springs
-    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.5 degrees at
+    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.1 degrees at
     the peak braking hard (the wheels' torque limit) from 0.35 m/s, about as much nose-up
-    setting off. A rigid robot with two casters cannot climb onto a ramp: the caster ahead
-    of the wheels rides up the ramp's foot and lifts them off the floor.
+    setting off; climbing a ramp it leans back 1-2 degrees beyond the ramp's angle. A rigid
+    robot with two casters cannot climb onto a ramp: the caster ahead of the wheels rides up
+    the ramp's foot and lifts them off the floor.
     """
 
-    stiffness: float = 1500.0
-    damping: float = 18.0
+    stiffness: float = 3000.0
+    damping: float = 30.0
     travel: float = math.radians(6.0)
     # Each drive wheel on a slide along z, pressed down by a spring compressed
-    # `wheel_preload` (metres) at its nominal place: 1500 N/m x 2 cm carries 30 N of each
-    # wheel's ~43 N share, so a caster riding 1 cm up lifts none of it off.
-    wheel_stiffness: float = 1500.0
-    wheel_damping: float = 200.0
-    wheel_preload: float = 0.02
+    # `wheel_preload` (metres) at its nominal place: 2500 N/m x 1.5 cm carries 37.5 N of each
+    # wheel's ~43 N share (the casters the rest), so a caster riding 1 cm up lifts little of
+    # it off and the wheels slip no more than the rigid robot's when it sets off and brakes.
+    wheel_stiffness: float = 2500.0
+    wheel_damping: float = 300.0
+    wheel_preload: float = 0.015
 
     def __post_init__(self) -> None:
         if not (self.stiffness > 0.0 and self.damping >= 0.0 and 0.0 < self.travel < 0.5):
