@@ -189,7 +189,11 @@ def params(
 def simulate(
     out: Annotated[Path, typer.Option('--out', help='bag to write: NAME.mcap file or folder')],
     world: Annotated[
-        str, typer.Option(help='room | bookshelf | barricade | clutter | ledge | stairs | hole')
+        str,
+        typer.Option(
+            help='room | bookshelf | barricade | clutter | ledge | stairs | hole | ramp-12 | '
+            'ramp-8 | ramp-ledge | sills'
+        ),
     ] = 'bookshelf',
     path: Annotated[
         str, typer.Option(help='scripted drive: straight | rotate | rotate-fast | arc | lap')
@@ -207,7 +211,8 @@ def simulate(
         typer.Option(
             help='default (one 360-degree LiDAR, a front camera) | amr (two 270-degree LiDARs '
             'at opposite corners, a front and a rear camera; topics as '
-            'examples/scanfuse_multi.yaml names them)'
+            'examples/scanfuse_multi.yaml names them) | sprung (default on a suspension: its body '
+            'pitches braking and on ramps; worlds ramp-12, ramp-8, ramp-ledge, sills)'
         ),
     ] = 'default',
     depth_rate: Annotated[
@@ -283,7 +288,8 @@ def evaluate(
     worlds: Annotated[
         str | None,
         typer.Option(
-            help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole,memory'
+            help='comma-separated: bookshelf,barricade,clutter,room,ledge,stairs,hole,memory,'
+            'terrain (ramps, a ledge beside a ramp, sills, braking, a mounting off)'
         ),
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,

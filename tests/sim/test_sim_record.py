@@ -37,6 +37,7 @@ EXPECTED_TYPES = {
     '/odom': 'nav_msgs/msg/Odometry',
     '/ground_truth/pose': 'geometry_msgs/msg/PoseStamped',
     '/collisions': 'std_msgs/msg/String',
+    '/imu': 'sensor_msgs/msg/Imu',
 }
 CONFIG = SimConfig(world='bookshelf', resolution=(256, 144), depth_rate=5.0)
 
@@ -73,6 +74,8 @@ def test_bag_is_one_mcap_file_with_every_topic_and_type(bag):
     assert counts['/camera/depth/image_raw'] == counts['/camera/depth/camera_info'] == 38
     # Odometry, TF and the true pose at 50 Hz over [0, 7.5] s, both ends.
     assert counts['/odom'] == counts['/tf'] == counts['/ground_truth/pose'] == 376
+    # The IMU at 100 Hz over [0, 7.5] s, both ends.
+    assert counts['/imu'] == 751
     assert counts['/tf_static'] == 1
     assert counts['/collisions'] >= 1
     assert durability == QosDurability.TRANSIENT_LOCAL
@@ -310,3 +313,32 @@ def test_every_lazy_export_of_the_sim_package_stays_itself_whatever_was_imported
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == '[]'
+
+
+def test_imu_messages_hold_the_bases_orientation_in_base_link(bag):
+    messages = read_all(bag)
+    imu = messages['/imu']
+    poses = {
+        (p.header.stamp.sec, p.header.stamp.nanosec): p.pose.orientation
+        for p in messages['/ground_truth/pose']
+    }
+    compared = 0
+    for message in imu:
+        assert message.header.frame_id == 'base_link'
+        # The noise's variance on the diagonal (0.1 degree).
+        assert message.orientation_covariance[0] == pytest.approx(math.radians(0.1) ** 2)
+        true = poses.get((message.header.stamp.sec, message.header.stamp.nanosec))
+        if true is None:
+            continue
+        # The IMU's orientation is the base's, within its noise (a few sigma of 0.1 degree).
+        dot = abs(
+            message.orientation.x * true.x
+            + message.orientation.y * true.y
+            + message.orientation.z * true.z
+            + message.orientation.w * true.w
+        )
+        assert math.degrees(2 * math.acos(min(1.0, dot))) < 0.8
+        compared += 1
+    assert compared == 376
+    # Gravity, measured by the accelerometer at rest: 9.81 m/s^2 up in base_link.
+    assert imu[0].linear_acceleration.z == pytest.approx(9.81, abs=0.1)

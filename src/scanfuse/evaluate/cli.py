@@ -8,10 +8,16 @@ from typing import TYPE_CHECKING, Any
 from scanfuse.config import NODE_ONLY, FusionConfig, read_ros_params
 from scanfuse.errors import ConfigError
 from scanfuse.progress import RichProgress
-from scanfuse.sim.worlds import WORLDS
+from scanfuse.sim.worlds import TERRAIN_WORLDS, WORLDS
 
-# The simulator's worlds, and `memory`: the memory trials (evaluate/memory_trials.py).
-EVALUATION_WORLDS = (*WORLDS, 'memory')
+# The simulator's worlds but the terrain ones, `memory`: the memory trials
+# (evaluate/memory_trials.py), and `terrain`: the terrain trials (evaluate/terrain_trials.py,
+# on the terrain worlds).
+EVALUATION_WORLDS = (
+    *(name for name in WORLDS if name not in TERRAIN_WORLDS),
+    'memory',
+    'terrain',
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -72,7 +78,7 @@ def run_evaluate(
 
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
     choose_headless_gl()
-    from scanfuse.evaluate.report import amr_table, table  # noqa: PLC0415
+    from scanfuse.evaluate.report import amr_table, table, terrain_table  # noqa: PLC0415
     from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
@@ -98,6 +104,9 @@ def run_evaluate(
     robot_rows = amr_table(result)
     if robot_rows is not None:
         console.print(robot_rows)
+    terrain_rows = terrain_table(result)
+    if terrain_rows is not None:
+        console.print(terrain_rows)
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')
     return result

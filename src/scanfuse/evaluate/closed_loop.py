@@ -61,6 +61,7 @@ if TYPE_CHECKING:
         Contact,
         Controller,
         DepthFrame,
+        ImuSample,
         LidarFrame,
         Simulation,
         StateSample,
@@ -410,6 +411,7 @@ class TrialOutcome:
     fell: bool = False  # the base left the floor plane (a drop-off)
     fall_time: float = float('nan')  # simulated seconds at the first fallen state sample
     reversing_contact: bool = False  # the first contact came while driving backwards
+    peak_pitch: float = float('nan')  # degrees: the largest |pitch| the IMU measured
 
 
 @dataclass
@@ -419,6 +421,7 @@ class DriveLog:
     frames: list[FrameRecord] = field(default_factory=list)
     contacts: list[Contact] = field(default_factory=list)
     true_path: list[tuple[float, float]] = field(default_factory=list)
+    imu: list[ImuSample] = field(default_factory=list)
 
 
 Released = Callable[['MethodStream', 'LidarFrame', 'Scan'], None]
@@ -477,6 +480,11 @@ class StreamFeed:
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
         del stamp_ns  # every contact carries its own stamp
         self.log.contacts.extend(contacts)
+
+    def on_imu(self, sample: ImuSample) -> None:
+        """The IMU's samples: kept (`DriveLog.imu`); the stream takes no IMU on this branch yet
+        (issue 25's `imu_topic` is being built in the stream)."""
+        self.log.imu.append(sample)
 
     def finish(self) -> None:
         for stream in self.streams:
@@ -576,8 +584,16 @@ def drive(
             (sim.fell_ns - log_start_ns(sim)) / 1e9 if sim.fell_ns is not None else float('nan')
         ),
         reversing_contact=bool(contact_v) and contact_v[0] < 0.0,
+        peak_pitch=peak_pitch(log.imu),
     )
     return outcome, log
+
+
+def peak_pitch(samples: Sequence[ImuSample]) -> float:
+    """The largest |pitch| the IMU measured, degrees (NaN without samples)."""
+    if not samples:
+        return math.nan
+    return math.degrees(max(abs(sample.roll_pitch[1]) for sample in samples))
 
 
 # ---------------------------------------------------------------- turning trials

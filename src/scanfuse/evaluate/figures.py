@@ -221,3 +221,21 @@ def bars_figure(
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
+
+
+def pitch_figure(traces: dict[str, tuple[list[float], list[float]]], path: Path) -> Path:
+    """The body's pitch over time (IMU, degrees, positive nose-down) in one trial per label."""
+    figure, axes = plt.subplots(figsize=(10, 4.5), layout='constrained')
+    for label, (times, pitches) in traces.items():
+        axes.plot(times, pitches, label=label, linewidth=1.0)
+    axes.axhline(0.0, color='0.3', linewidth=0.6)
+    axes.set_xlabel('time (s)')
+    axes.set_ylabel('body pitch (deg, + nose-down)')
+    axes.grid(visible=True, alpha=0.3)
+    axes.legend(fontsize=8)
+    figure.suptitle(
+        "Terrain trials: the sprung robot's body pitch, from its IMU (the obstacle runs)"
+    )
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path

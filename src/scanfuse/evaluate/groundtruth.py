@@ -5,6 +5,11 @@ Built from the world's true obstacle geometry with the simulator's exact
 (and so which kind) is nearest in it. A drop-off (`worlds.Drop`) is one more
 obstacle, of its own kind (ledge, stairs, hole), at floor level and below the
 LiDAR's plane: the plane never sees it.
+
+On terrain (ramps, platforms: `worlds.Ground`) the slab's heights are above the ground each
+obstacle stands on (`Obstacle.ground`): the ramp itself is floor, never an obstacle, and a box
+on it is one. Which obstacles the LiDAR's plane crosses is decided per scan at the LiDAR's
+true height (`LidarFrame.origin`): on a platform its plane lies higher.
 """
 
 from __future__ import annotations
@@ -134,22 +139,25 @@ class SlotTruthBuilder:
         view counts as in view too (a robot with a rear camera)."""
         self.grid = grid
         self.seen = seen
-        lidar_height = extrinsics.base_to_laser.translation[2]
         in_slab = [
             o for o in obstacles if o.overlaps_slab(min_obstacle_height, max_obstacle_height)
         ]
         self._kinds = np.array(
             [o.kind for o in in_slab] + [d.kind for d in drops] + [''], dtype=np.str_
         )
-        # A drop's edge is at floor level: the camera must see the floor there.
+        # A drop's edge is at floor level: the camera must see the floor there. Tops in the
+        # world's z: the slab's top is above the ground the obstacle stands on.
         self._tops = np.array(
-            [min(o.z_max, max_obstacle_height) for o in in_slab] + [0.0] * len(drops) + [0.0],
+            [min(o.z_max, o.ground + max_obstacle_height) for o in in_slab]
+            + [0.0] * len(drops)
+            + [0.0],
             dtype=np.float64,
         )
-        self._crosses_plane = np.array(
-            [o.z_min <= lidar_height <= o.z_max for o in in_slab] + [False] * len(drops),
-            dtype=bool,
-        )
+        # Height spans (world z) of what the LiDAR's plane may cross; drops never.
+        self._spans = np.array(
+            [(o.z_min, o.z_max) for o in in_slab] + [(np.inf, -np.inf)] * len(drops),
+            dtype=np.float64,
+        ).reshape(-1, 2)
         self._scanners = [
             TruthScanner(
                 (obstacle,),
@@ -183,7 +191,6 @@ class SlotTruthBuilder:
             )
             for model, view in ((camera, extrinsics), *more_cameras)
         ]
-        self._lidar_height = lidar_height
         self._lidar_yaw = extrinsics.base_to_laser.rpy()[2]
         # The round footprint about the base's origin, in the LiDAR's frame (all-around recall).
         self.footprint_radius = footprint_radius
@@ -208,12 +215,10 @@ class SlotTruthBuilder:
         truth = ranges[nearest, np.arange(count)]
         found = np.isfinite(truth)
         index = np.where(found, nearest, len(self._scanners))
-        plane = (
-            ranges[self._crosses_plane].min(axis=0)
-            if self._crosses_plane.any()
-            else np.full(count, np.inf, dtype=np.float32)
-        )
-        in_view = found & self._visible(truth, self._tops[index])
+        height = origin[2]  # the LiDAR's plane, in the world's z
+        crosses = (self._spans[:, 0] <= height) & (height <= self._spans[:, 1])
+        plane = ranges[crosses].min(axis=0) if crosses.any() else np.full(count, np.inf, np.float32)
+        in_view = found & self._visible(truth, self._tops[index], height)
         truth = truth.astype(np.float32)
         near = (
             None
@@ -231,14 +236,13 @@ class SlotTruthBuilder:
         return SlotTruth(truth, plane, self._kinds[index], in_view, near, shown)
 
     def _visible(
-        self, ranges: npt.NDArray[np.float32], tops: npt.NDArray[np.float64]
+        self, ranges: npt.NDArray[np.float32], tops: npt.NDArray[np.float64], height: float
     ) -> npt.NDArray[np.bool_]:
-        """Slots whose obstacle top (at the truth range) projects into an image within range."""
+        """Slots whose obstacle top (at the truth range) projects into an image within range;
+        `height` the LiDAR's in the world (the robot level on its ground)."""
         angles = self.grid.angles()
         finite = np.where(np.isfinite(ranges), ranges, 0.0).astype(np.float64)
-        points = np.column_stack(
-            [finite * np.cos(angles), finite * np.sin(angles), tops - self._lidar_height]
-        )
+        points = np.column_stack([finite * np.cos(angles), finite * np.sin(angles), tops - height])
         visible: npt.NDArray[np.bool_] = np.zeros(len(points), dtype=bool)
         for camera, laser_to_optical, camera_in_laser in self._views:
             optical = laser_to_optical.apply(points)

@@ -11,6 +11,9 @@
   nearest point per slot (before the noise-robust statistic), over the camera's full
   range and capped at 3 m.
 
+- `obstacle-no-ground`: `obstacle` with `ground_estimate: false`: heights above the
+  mounting's plane, as before issue 25 (the floor is not found in each frame).
+
 - `obstacle` is the shipped default, obstacle memory on; `obstacle-no-memory` the
   instantaneous fused scan; `obstacle-uncompensated`: that one with motion_compensation
   false: the depth frame is fused as if taken at the scan's stamp and the LiDAR is not
@@ -119,6 +122,15 @@ METHODS: dict[str, MethodSpec] = {
             'obstacle',
             'height-filtered full-frame obstacle scan (ours), depth capped at 3 m',
             (('method', Method.OBSTACLE), ('range_max', OBSTACLE_RANGE_MAX)),
+        ),
+        MethodSpec(
+            'obstacle-no-ground',
+            "obstacle with ground_estimate false: heights above the mounting's plane",
+            (
+                ('method', Method.OBSTACLE),
+                ('range_max', OBSTACLE_RANGE_MAX),
+                ('ground_estimate', False),
+            ),
         ),
         MethodSpec(
             'obstacle-no-memory',

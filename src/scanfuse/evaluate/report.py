@@ -268,6 +268,137 @@ def amr_section(result: EvaluationResult) -> list[str]:
     ]
 
 
+TERRAIN_NOTE = (
+    'Terrain trials (`--worlds terrain`, evaluate/terrain_trials.py), driven by the `sprung` '
+    'robot: its body sits on a pitch spring over sprung drive wheels, so it pitches about '
+    "2 degrees braking hard and setting off, and rocks over a ramp's foot and crest; its "
+    "IMU (100 Hz) gives each trial's peak pitch. Families (seeded variants): "
+    '`terrain-ramp-12` and `terrain-ramp-8`, up a 1:12 (1:8) ramp 1.2 m wide to a platform '
+    '0.15 m high and down again between walls, past low boxes (6-12 cm above the ground under '
+    'them) on the ramp, on the platform and beside its mouth, to a goal past the far foot; '
+    '`terrain-ledge`, a 1:8 ramp with a 0.4 m ledge along its right side, the straight line to '
+    'the goal crossing the yard; `terrain-sills`, doors with bevelled sills 1-2 cm high; '
+    '`terrain-brake`, straight at 0.35 m/s towards a low box across the path (flat floor, or '
+    "on a 1:12 ramp's platform), braking as hard as the motors allow once the driving scan "
+    'shows anything within 0.35 m of the front in the path (reached: stopped 0-0.6 m short of '
+    'the box); `terrain-mount`, the 1:12 ramp with the camera 2 degrees and 3 cm off the '
+    'mounting its parameters and /tf_static give (all four signs). The ground truth measures '
+    'heights above the ground each obstacle stands on: a ramp is floor, a box on it an '
+    'obstacle. On slopes: scans taken with the LiDAR on a ramp or within 1.5 m of one. False '
+    'drops as on the other worlds (a twin stream with `detect_drops: false`), on the terrain '
+    'worlds without drop-offs. The IMU is recorded but not fused on this branch (the stream '
+    'takes no IMU yet). Targets (issue 25): `obstacle` 0 collisions, 0 falls, every ramp trial '
+    'reaches its goal; false obstacles on slopes <= 0.5 %.'
+)
+TERRAIN_HEADERS = [
+    'method',
+    'false obstacles on slopes',
+    'false drops on slopes',
+    'recall on slopes',
+    'false obstacles (all terrain)',
+    'collisions',
+    'falls',
+    'goals reached',
+    'ramp goals reached',
+]
+
+
+def terrain_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per method: false obstacles, false drops and recall on slopes, the closed loop."""
+    from scanfuse.evaluate.terrain_trials import RAMP_FAMILIES  # noqa: PLC0415
+
+    rows = []
+    for name, terrain in result.terrain.items():
+        loop = terrain.closed_loop
+        ramps = [
+            o
+            for o in result.terrain_trials
+            if o.method == name and o.trial.rsplit('-', 1)[0] in RAMP_FAMILIES
+        ]
+        rows.append(
+            [
+                name,
+                _percent(terrain.scan_slopes.false_obstacle_rate),
+                _percent(terrain.slope_false_drop_rate),
+                _fmt(terrain.scan_slopes.recall),
+                _percent(terrain.scan.false_obstacle_rate),
+                f'{loop.collisions}/{loop.trials}' if loop else '-',
+                f'{loop.falls}/{loop.trials}' if loop else '-',
+                f'{loop.reached}/{loop.trials}' if loop else '-',
+                f'{sum(o.reached for o in ramps)}/{len(ramps)}' if ramps else '-',
+            ]
+        )
+    return rows
+
+
+def terrain_section(result: EvaluationResult) -> list[str]:
+    """The terrain trials: per-method rows, per-family outcomes, every trial."""
+    if not result.terrain:
+        return []
+    families: dict[tuple[str, str], list[int]] = {}
+    for o in result.terrain_trials:
+        counts = families.setdefault((o.trial.rsplit('-', 1)[0], o.method), [0, 0, 0, 0])
+        counts[0] += 1
+        counts[1] += o.collided
+        counts[2] += o.fell
+        counts[3] += o.reached
+    per_family = [
+        [family, method, f'{c[1]}/{c[0]}', f'{c[2]}/{c[0]}', f'{c[3]}/{c[0]}']
+        for (family, method), c in sorted(families.items())
+    ]
+    trials = [
+        [
+            o.trial,
+            o.method,
+            'yes' if o.collided else 'no',
+            o.first_contact_kind or '-',
+            'yes' if o.fell else 'no',
+            'yes' if o.reached else 'no',
+            _fmt(o.final_distance, 2),
+            _fmt(o.peak_pitch, 1),
+            _fmt(o.duration, 1),
+        ]
+        for o in result.terrain_trials
+    ]
+    return [
+        '## Terrain: ramps, a ledge beside a ramp, sills, braking, a mounting off',
+        '',
+        TERRAIN_NOTE,
+        '',
+        _markdown_table(TERRAIN_HEADERS, terrain_rows(result)),
+        '',
+        _markdown_table(['family', 'method', 'collisions', 'falls', 'reached'], per_family),
+        '',
+        _markdown_table(
+            [
+                'trial',
+                'method',
+                'collided',
+                'hit',
+                'fell',
+                'reached',
+                'to goal (m; brake: gap to the box)',
+                'peak pitch (deg)',
+                'time (s)',
+            ],
+            trials,
+        ),
+        '',
+    ]
+
+
+def terrain_table(result: EvaluationResult) -> Table | None:
+    """The terrain rows as a rich table for the terminal (None: no terrain trial was run)."""
+    if not result.terrain:
+        return None
+    view = Table(title='scanfuse evaluation: terrain (ramps, ledge, sills, braking, mounting)')
+    for header in TERRAIN_HEADERS:
+        view.add_column(header, justify='left' if header == 'method' else 'right')
+    for row in terrain_rows(result):
+        view.add_row(*row, style='bold' if row[0] == 'obstacle' else None)
+    return view
+
+
 def amr_table(result: EvaluationResult) -> Table | None:
     """The AMR's rows as a rich table for the terminal (None: no AMR trial was run)."""
     if not result.robots:
@@ -420,6 +551,7 @@ def markdown(result: EvaluationResult) -> str:
     parts += [_markdown_table(['method', 'trial', 'precision', 'recall', 'IoU'], rows), '']
     parts += memory_section(result)
     parts += amr_section(result)
+    parts += terrain_section(result)
     parts += ['## Closed-loop trials', '']
     rows = [
         [
@@ -468,6 +600,11 @@ def write_figures(evaluation: Evaluation, out: Path) -> list[str]:
             ).name
         )
     files.append(_bars_figure(evaluation, out).name)
+    if evaluation.terrain_specs:
+        files.append(_terrain_figure(evaluation, out).name)
+        if evaluation.terrain.pitch:
+            path = out / 'terrain_pitch.png'
+            files.append(figures.pitch_figure(evaluation.terrain.pitch, path).name)
     for label, costmaps in evaluation.costmaps.items():
         files.append(_costmap_figure(label, costmaps, out).name)
     for label, entry in evaluation.collision_logs.items():
@@ -602,6 +739,28 @@ def _bars_figure(evaluation: Evaluation, out: Path) -> Path:
     }
     return figures.bars_figure(
         names, metrics, out / 'metrics.png', title='scanfuse: methods compared'
+    )
+
+
+def _terrain_figure(evaluation: Evaluation, out: Path) -> Path:
+    """Per method on the terrain trials: false obstacles and drops and recall on slopes, and
+    the share of its trials that reached their goal."""
+    result = evaluation.result([])
+    names = list(result.terrain)
+    terrain = [result.terrain[n] for n in names]
+    metrics = {
+        'false obstacles on slopes (% of slots)': [
+            100 * t.scan_slopes.false_obstacle_rate for t in terrain
+        ],
+        'false drops on slopes (% of slots)': [100 * t.slope_false_drop_rate for t in terrain],
+        'recall of low obstacles on slopes': [t.scan_slopes.recall for t in terrain],
+        'goals reached (share of terrain trials)': [
+            (loop.reached / loop.trials) if (loop := t.closed_loop) else float('nan')
+            for t in terrain
+        ],
+    }
+    return figures.bars_figure(
+        names, metrics, out / 'terrain.png', title='scanfuse: terrain trials (sprung robot)'
     )
 
 

@@ -97,6 +97,31 @@ class RobotResult:
 
 
 @dataclass(frozen=True)
+class TerrainResult:
+    """One method on the terrain trials (`terrain_trials`): its scans over every terrain trial
+    and over those on or near a ramp (`scan_slopes`), its false drop slots likewise (on the
+    terrain worlds without drop-offs), and the trials it drove (None: it drove none)."""
+
+    method: str
+    scan: ScanMetrics
+    scan_slopes: ScanMetrics
+    drop_free_slots: int
+    false_drop_slots: int
+    slope_drop_free_slots: int
+    slope_false_drop_slots: int
+    closed_loop: ClosedLoopSummary | None
+
+    @property
+    def false_drop_rate(self) -> float:
+        return self.false_drop_slots / self.drop_free_slots if self.drop_free_slots else math.nan
+
+    @property
+    def slope_false_drop_rate(self) -> float:
+        slots = self.slope_drop_free_slots
+        return self.slope_false_drop_slots / slots if slots else math.nan
+
+
+@dataclass(frozen=True)
 class EvaluationResult:
     """One evaluation run: settings, per-method results, every trial, and the files written."""
 
@@ -106,6 +131,8 @@ class EvaluationResult:
     files: list[str] = field(default_factory=list)
     version: int = RESULTS_VERSION
     robots: dict[str, RobotResult] = field(default_factory=dict)  # keyed 'amr/<method>'
+    terrain: dict[str, TerrainResult] = field(default_factory=dict)  # keyed by method
+    terrain_trials: list[TrialOutcome] = field(default_factory=list)
 
     def headline(self) -> dict[str, dict[str, float]]:
         """The numbers the report leads with, per method."""
@@ -137,6 +164,18 @@ class EvaluationResult:
                 row['reversing_collisions'] = robot.closed_loop.reversing_collisions
                 row['reached'] = robot.closed_loop.reached
             table[key] = row
+        for name, terrain in self.terrain.items():
+            row = {
+                'recall': terrain.scan_slopes.recall,
+                'false_obstacle_rate': terrain.scan_slopes.false_obstacle_rate,
+                'false_drop_rate': terrain.slope_false_drop_rate,
+            }
+            if terrain.closed_loop is not None:
+                row['trials'] = terrain.closed_loop.trials
+                row['collisions'] = terrain.closed_loop.collisions
+                row['falls'] = terrain.closed_loop.falls
+                row['reached'] = terrain.closed_loop.reached
+            table[f'terrain/{name}'] = row
         return table
 
     def compare(self, other: EvaluationResult) -> dict[str, dict[str, float]]:
@@ -176,6 +215,12 @@ class EvaluationResult:
                 robots={
                     key: _robot_from_dict(value) for key, value in data.get('robots', {}).items()
                 },
+                terrain={
+                    key: _terrain_from_dict(value) for key, value in data.get('terrain', {}).items()
+                },
+                terrain_trials=[
+                    TrialOutcome(**_none_to_nan(trial)) for trial in data.get('terrain_trials', [])
+                ],
             )
         except (KeyError, TypeError, json.JSONDecodeError) as err:
             msg = f'not a scanfuse results.json ({err}); write one with `scanfuse evaluate`'
@@ -199,6 +244,20 @@ def _robot_from_dict(data: dict[str, Any]) -> RobotResult:
         scan=_scan_from_dict(data['scan']),
         closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
         trials=[TrialOutcome(**_none_to_nan(trial)) for trial in data.get('trials', [])],
+    )
+
+
+def _terrain_from_dict(data: dict[str, Any]) -> TerrainResult:
+    loop = data['closed_loop']
+    return TerrainResult(
+        method=data['method'],
+        scan=_scan_from_dict(data['scan']),
+        scan_slopes=_scan_from_dict(data['scan_slopes']),
+        drop_free_slots=int(data['drop_free_slots']),
+        false_drop_slots=int(data['false_drop_slots']),
+        slope_drop_free_slots=int(data['slope_drop_free_slots']),
+        slope_false_drop_slots=int(data['slope_false_drop_slots']),
+        closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
     )
 
 

@@ -6,12 +6,16 @@ every method's own `FusionStream` the same sensor events and score each scan it
 releases against the ground truth at the scan's stamp, and build each method's map;
 run the scripted turning trials the same way; keep a few frames for the figures;
 run the two-LiDAR, two-camera AMR's trials (`amr_trials`: backing out of a dead end past a
-low box) with its own methods, scored on the `obstacle` runs' 360-degree fused scans; write
+low box) with its own methods, scored on the `obstacle` runs' 360-degree fused scans; run the
+terrain trials (`terrain_trials`: ramps, a ledge beside a ramp, sills, hard braking, a camera
+mounted off its parameters, the sprung robot) with their methods, scored on the `obstacle`
+runs apart from the other worlds (all their scans, and those on or near a ramp); write
 results. All of it in real sensor time (`scanfuse.sim.simulation`).
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
@@ -31,6 +35,7 @@ from scanfuse.evaluate.closed_loop import (
     TrialOutcome,
     TrialSpec,
     TurningSpec,
+    Watcher,
     drive,
     evaluation_world,
     memory_specs,
@@ -56,6 +61,15 @@ from scanfuse.evaluate.results import (
     EvaluationResult,
     MethodResult,
     RobotResult,
+    TerrainResult,
+)
+from scanfuse.evaluate.terrain_trials import (
+    TERRAIN_FAMILIES,
+    TERRAIN_METHODS,
+    TERRAIN_SCORED,
+    brake,
+    terrain_specs,
+    terrain_trial,
 )
 from scanfuse.motion import OdometryHistory, PlanarPose
 from scanfuse.progress import NullProgress, Progress
@@ -70,7 +84,13 @@ if TYPE_CHECKING:
     from scanfuse.config import FusionConfig
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
-    from scanfuse.sim.simulation import DepthFrame, LidarFrame, Simulation, StateSample
+    from scanfuse.sim.simulation import (
+        DepthFrame,
+        LidarFrame,
+        SimConfig,
+        Simulation,
+        StateSample,
+    )
     from scanfuse.sim.worlds import World
 
 MAP_RESOLUTION = 0.05
@@ -90,6 +110,7 @@ class EvaluationSettings:
         'stairs',
         'hole',
         'memory',
+        'terrain',
     )
     trials: int = 30  # seeded clutter worlds
     methods: tuple[str, ...] = tuple(METHODS)
@@ -113,6 +134,13 @@ class EvaluationSettings:
     amr: tuple[str, ...] = tuple(AMR_FAMILIES)
     amr_trials: int = 5
     amr_methods: tuple[str, ...] = AMR_METHODS
+    # The terrain trials (world `terrain`): families, seeded variants per family, methods.
+    terrain: tuple[str, ...] = tuple(TERRAIN_FAMILIES)
+    terrain_trials: int = 5
+    terrain_methods: tuple[str, ...] = TERRAIN_METHODS
+    # Scored on the terrain trials' scans, of `methods` (each scored method runs a stream, and
+    # a twin for false drops, through every trial: all of them would cost twice the time).
+    terrain_scored: tuple[str, ...] = TERRAIN_SCORED
     # A parameter file's ros__parameters (`--params`): the robot's mounting and slab, and
     # the base every method's configuration changes; empty: the simulated robot as built.
     params: dict[str, Any] = field(default_factory=dict)
@@ -134,6 +162,7 @@ class EvaluationSettings:
             time_limit=20.0,
             mapped_trials=3,
             amr_trials=1,
+            terrain_trials=1,
         )
         return replace(base, **changes)
 
@@ -154,7 +183,7 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
     every other trial's the default robot.
     """
     from scanfuse.sim.robot import AMR, RobotSpec  # noqa: PLC0415
-    from scanfuse.sim.simulation import SimConfig, Simulation, robot_mounting  # noqa: PLC0415
+    from scanfuse.sim.simulation import Simulation, robot_mounting  # noqa: PLC0415
 
     amr = isinstance(trial, TrialSpec) and trial.world in AMR_FAMILIES
     if isinstance(trial, TurningSpec):
@@ -172,10 +201,20 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
             'min_obstacle_height': base.min_obstacle_height,
             'max_obstacle_height': base.max_obstacle_height,
         }
-    config = SimConfig(
+    config = sim_config(settings, world, seed, AMR_LIDAR if amr else settings.lidar, **robot)
+    return Simulation(config, world)
+
+
+def sim_config(
+    settings: EvaluationSettings, world: World, seed: int, lidar: str, **robot: Any
+) -> SimConfig:
+    """The simulation's configuration: the settings' sensors and timing, `robot`'s fields."""
+    from scanfuse.sim.simulation import SimConfig  # noqa: PLC0415
+
+    return SimConfig(
         world=world.name,
         seed=seed,
-        lidar=AMR_LIDAR if amr else settings.lidar,
+        lidar=lidar,
         resolution=settings.resolution,
         depth_rate=settings.depth_rate,
         depth_latency=settings.depth_latency,
@@ -184,7 +223,33 @@ def make_simulation(trial: TrialSpec | TurningSpec, settings: EvaluationSettings
         noise=settings.noise,
         **robot,
     )
-    return Simulation(config, world)
+
+
+def terrain_simulation(
+    spec: TrialSpec, settings: EvaluationSettings
+) -> tuple[Simulation, FusionConfig, list[StampedTransform]]:
+    """A terrain trial's simulation of the sprung robot, and the configuration and /tf_static
+    of the robot as its parameters describe it (the camera's mounting errors left out)."""
+    from scanfuse.sim.recording import static_transforms  # noqa: PLC0415
+    from scanfuse.sim.robot import SPRUNG  # noqa: PLC0415
+    from scanfuse.sim.simulation import Simulation, fusion_config, robot_mounting  # noqa: PLC0415
+
+    trial = terrain_trial(spec.world, spec.seed)
+    base = settings.fusion_base()
+    slab: dict[str, Any] = {}
+    robot = SPRUNG
+    if base is not None:
+        mounting: dict[str, Any] = dict(robot_mounting(base))
+        robot = replace(SPRUNG, **mounting)
+        slab = {
+            'min_obstacle_height': base.min_obstacle_height,
+            'max_obstacle_height': base.max_obstacle_height,
+        }
+    simulated, nominal = trial.robots(robot)
+    config = sim_config(settings, trial.world, spec.seed, settings.lidar, robot=simulated, **slab)
+    sim = Simulation(config, trial.world)
+    described = fusion_config(replace(config, robot=nominal), base)
+    return sim, described, static_transforms(nominal)
 
 
 def robot_transforms(sim: Simulation) -> list[StampedTransform]:
@@ -226,6 +291,9 @@ class Snapshot:
 # (index into the trials, a turning trial's name, or 'amr:<index into the AMR trials>', method)
 Job = tuple[int | str, str]
 AMR_JOB = 'amr:'
+TERRAIN_JOB = 'terrain:'
+# Terrain scans count as on slopes when the LiDAR is on a ramp or this near one, metres.
+SLOPE_REACH = 1.5
 
 
 @dataclass
@@ -244,6 +312,46 @@ class EvaluationPart:
     drop_tallies: dict[str, DropTally]
     amr_tallies: dict[str, ScanTally] = field(default_factory=dict)
     amr_outcomes: list[TrialOutcome] = field(default_factory=list)
+    terrain: TerrainTallies | None = None
+
+
+@dataclass
+class TerrainTallies:
+    """What the terrain trials measured: scans over all of them and on or near slopes (per
+    method), false drop slots likewise, and every trial's outcome."""
+
+    scans: dict[str, ScanTally] = field(default_factory=dict)
+    slopes: dict[str, ScanTally] = field(default_factory=dict)
+    drops: dict[str, DropTally] = field(default_factory=dict)
+    slope_drops: dict[str, DropTally] = field(default_factory=dict)
+    outcomes: list[TrialOutcome] = field(default_factory=list)
+    # The body's pitch over the scoring run of each family's first trial: times (s), pitch
+    # (degrees, positive nose-down) from the IMU, for the report's figure.
+    pitch: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, methods: Sequence[str]) -> TerrainTallies:
+        return cls(
+            {name: ScanTally() for name in methods},
+            {name: ScanTally() for name in methods},
+            {name: DropTally() for name in methods},
+            {name: DropTally() for name in methods},
+        )
+
+    def merge(self, other: TerrainTallies) -> None:
+        for mine, theirs in ((self.scans, other.scans), (self.slopes, other.slopes)):
+            for name, tally in theirs.items():
+                mine[name].merge(tally)
+        for mine_drops, their_drops in (
+            (self.drops, other.drops),
+            (self.slope_drops, other.slope_drops),
+        ):
+            for name, drops in their_drops.items():
+                mine_drops[name].slots += drops.slots
+                mine_drops[name].false_drops += drops.false_drops
+        self.outcomes += other.outcomes
+        for label, trace in other.pitch.items():
+            self.pitch.setdefault(label, trace)
 
 
 @dataclass
@@ -289,6 +397,9 @@ class Evaluation:
             ('turning trial', settings.turning, TURNING_TRIALS),
             ('AMR trial', settings.amr, AMR_FAMILIES),
             ('AMR method', settings.amr_methods, AMR_METHODS),
+            ('terrain trial', settings.terrain, TERRAIN_FAMILIES),
+            ('terrain method', settings.terrain_methods, METHODS),
+            ('terrain scored method', settings.terrain_scored, METHODS),
         ):
             _check_names(kind, names, known)
         self.settings = settings
@@ -297,6 +408,12 @@ class Evaluation:
         if 'memory' in settings.worlds:
             self.trials += memory_specs(settings.memory, settings.memory_trials)
         self.amr_specs = amr_specs(settings.amr, settings.amr_trials)
+        self.terrain_specs = (
+            terrain_specs(settings.terrain, settings.terrain_trials)
+            if 'terrain' in settings.worlds
+            else []
+        )
+        self.terrain = TerrainTallies.of(settings.methods)
         base = settings.fusion_base()
         if base is not None and (self.trials or settings.turning):
             from scanfuse.sim.simulation import robot_mounting  # noqa: PLC0415
@@ -340,6 +457,11 @@ class Evaluation:
             for index in range(len(self.amr_specs))
             for method in self.settings.amr_methods
         ]
+        work += [
+            (f'{TERRAIN_JOB}{index}', method)
+            for index in range(len(self.terrain_specs))
+            for method in self.settings.terrain_methods
+        ]
         return work
 
     def run(self, jobs: int = 1) -> None:
@@ -375,6 +497,8 @@ class Evaluation:
         key, method = job
         if isinstance(key, str) and key.startswith(AMR_JOB):
             self._amr_trial(self.amr_specs[int(key[len(AMR_JOB) :])], method)
+        elif isinstance(key, str) and key.startswith(TERRAIN_JOB):
+            self._terrain_trial(self.terrain_specs[int(key[len(TERRAIN_JOB) :])], method)
         elif isinstance(key, str):
             self._turning(TURNING_TRIALS[key])
         else:
@@ -394,6 +518,7 @@ class Evaluation:
             self.drop_tallies,
             self.amr_tallies,
             self.amr_outcomes,
+            self.terrain,
         )
 
     def merge(self, part: EvaluationPart) -> None:
@@ -425,6 +550,8 @@ class Evaluation:
         for name, tally in part.amr_tallies.items():
             self.amr_tallies[name].merge(tally)
         self.amr_outcomes += part.amr_outcomes
+        if part.terrain is not None:
+            self.terrain.merge(part.terrain)
 
     def _trial(self, trial: TrialSpec, method: str) -> None:
         sim = make_simulation(trial, self.settings)
@@ -495,6 +622,55 @@ class Evaluation:
 
             outcome, _ = drive(sim, trial, driver, observers=observers, on_scan=on_scan)
             self.amr_outcomes.append(outcome)
+        finally:
+            sim.close()
+
+    def _terrain_trial(self, spec: TrialSpec, method: str) -> None:
+        """One terrain trial driven by `method`; the `obstacle` run scores every method.
+
+        The streams get the robot as its parameters describe it; the simulated camera may sit
+        otherwise (`TerrainTrial.pitch_error`, `height_error`). The truth's camera view is the
+        simulated camera's.
+        """
+        trial = terrain_trial(spec.world, spec.seed)
+        sim, base, transforms = terrain_simulation(spec, self.settings)
+        try:
+            driver = MethodStream(method, base, sim.camera, transforms)
+            scorer = (
+                _Scorer(
+                    self,
+                    spec.label,
+                    spec.world,
+                    sim,
+                    base,
+                    transforms,
+                    mapped=False,
+                    terrain=True,
+                )
+                if _scores(method, self.settings.terrain_methods)
+                else None
+            )
+            observers = scorer.streams if scorer else []
+
+            def on_scan(stream: MethodStream, frame: LidarFrame, scan: Scan) -> None:
+                if scorer is not None:
+                    scorer.add(stream, frame, scan)
+
+            if trial.brake:
+                outcome, log = brake(
+                    sim, spec, trial.box_face, driver, observers=observers, on_scan=on_scan
+                )
+            else:
+                outcome, log = drive(sim, spec, driver, observers=observers, on_scan=on_scan)
+            if scorer is not None:
+                scorer.close()
+                if spec.seed == 0 and log.imu:
+                    start = log.imu[0].stamp_ns
+                    self.terrain.pitch[spec.label] = (
+                        [(sample.stamp_ns - start) / 1e9 for sample in log.imu],
+                        [math.degrees(sample.roll_pitch[1]) for sample in log.imu],
+                    )
+            self.terrain.outcomes.append(outcome)
         finally:
             sim.close()
 
@@ -570,7 +746,37 @@ class Evaluation:
                 closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
                 trials=outcomes,
             )
-        return EvaluationResult(settings, methods, list(self.outcomes), files, robots=robots)
+        terrain = (
+            {
+                name: self._terrain_result(name)
+                for name in self.settings.methods
+                if self.terrain.scans[name].slots or name in self.settings.terrain_methods
+            }
+            if self.terrain_specs
+            else {}
+        )
+        return EvaluationResult(
+            settings,
+            methods,
+            list(self.outcomes),
+            files,
+            robots=robots,
+            terrain=terrain,
+            terrain_trials=list(self.terrain.outcomes),
+        )
+
+    def _terrain_result(self, name: str) -> TerrainResult:
+        outcomes = [o for o in self.terrain.outcomes if o.method == name]
+        return TerrainResult(
+            method=name,
+            scan=self.terrain.scans[name].summary(),
+            scan_slopes=self.terrain.slopes[name].summary(),
+            drop_free_slots=self.terrain.drops[name].slots,
+            false_drop_slots=self.terrain.drops[name].false_drops,
+            slope_drop_free_slots=self.terrain.slope_drops[name].slots,
+            slope_false_drop_slots=self.terrain.slope_drops[name].false_drops,
+            closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
+        )
 
     def _memory_scan(self, name: str) -> ScanMetrics | None:
         """Scan metrics over the memory trials' scans (None: no memory trial was run)."""
@@ -689,12 +895,23 @@ class _Scorer:
         transforms: list[StampedTransform],
         *,
         mapped: bool,
+        terrain: bool = False,
     ) -> None:
+        """`terrain`: a terrain trial's scans, tallied apart (`Evaluation.terrain`): those on
+        or near a ramp as well on their own; the truth's camera is the simulated one, and no
+        `SeenSurfaces` (it places images on a level floor)."""
         settings = evaluation.settings
         self.evaluation = evaluation
         self.label = label
+        self.terrain = terrain
+        self.world = sim.world
         camera = sim.camera
-        self.streams = [MethodStream(name, base, camera, transforms) for name in settings.methods]
+        scored = (
+            [name for name in settings.methods if name in settings.terrain_scored]
+            if terrain
+            else settings.methods
+        )
+        self.streams = [MethodStream(name, base, camera, transforms) for name in scored]
         self._names = {stream: stream.name for stream in self.streams}
         # On a world without drop-offs, each method that reports drops runs a twin with
         # detect_drops off on the same events: its scans tell the false drop slots.
@@ -710,17 +927,25 @@ class _Scorer:
         self._scored = list(self.streams)  # without the twins
         extrinsics = Extrinsics.from_config(base)
         slab = (base.min_obstacle_height, base.max_obstacle_height)
-        seen = SeenSurfaces(
-            sim.world.obstacles,
-            sim.world.bounds,
-            slab=slab,
-            range_min=base.range_min,
-            range_max=base.range_max,
-            drops=sim.world.drops,
+        seen = (
+            None
+            if terrain
+            else SeenSurfaces(
+                sim.world.obstacles,
+                sim.world.bounds,
+                slab=slab,
+                range_min=base.range_min,
+                range_max=base.range_max,
+                drops=sim.world.drops,
+            )
         )
         self.streams = list(self._names)
         # Fed first, so that a frame counts as shown before any scan it releases is scored.
-        self.watchers = [SeenObserver(seen, extrinsics)]
+        self.watchers: list[Watcher] = [] if seen is None else [SeenObserver(seen, extrinsics)]
+        if terrain:
+            from scanfuse.sim.simulation import fusion_config  # noqa: PLC0415
+
+            extrinsics = Extrinsics.from_config(fusion_config(sim.config, base))
         self._pending: dict[int, dict[str, Scan]] = {}
         self.truths = SlotTruthBuilder(
             sim.world.obstacles,
@@ -771,14 +996,27 @@ class _Scorer:
         evaluation = self.evaluation
         truth = self.truths.build(frame)
         twins = {self._twins[name]: scans.pop(self._twins[name]) for name in self._twins}
+        terrain = evaluation.terrain
+        slope = self.terrain and self.world.on_slope(*frame.origin[:2], SLOPE_REACH)
         for name, scan in scans.items():
-            evaluation.tallies[name].add(scan.ranges, truth)
-            self.group_tallies[name].add(scan.ranges, truth)
+            tallies = [self.group_tallies[name]]
+            drops = []
+            if self.terrain:
+                tallies.append(terrain.scans[name])
+                drops.append(terrain.drops[name])
+                if slope:
+                    tallies.append(terrain.slopes[name])
+                    drops.append(terrain.slope_drops[name])
+            else:
+                tallies.append(evaluation.tallies[name])
+                drops.append(evaluation.drop_tallies[name])
+            for tally in tallies:
+                tally.add(scan.ranges, truth)
             twin = twins.get(self._twins.get(name, ''))
             if twin is not None:
-                evaluation.drop_tallies[name].add(
-                    false_drop_slots(scan.ranges, twin.ranges, truth.truth)
-                )
+                mask = false_drop_slots(scan.ranges, twin.ranges, truth.truth)
+                for drop_tally in drops:
+                    drop_tally.add(mask)
             if self.maps is not None:
                 self.maps.grid(name).integrate(scan, *frame.origin[:2], frame.lidar_yaw)
             if self.costmaps is not None and name in self.costmaps.costmaps:
@@ -791,7 +1029,10 @@ class _Scorer:
             evaluation.snapshots[self.label] = Snapshot(self.label, frame, scans)
 
     def close(self) -> None:
-        """Add up what the streams did (every stream released every scan: none is lost)."""
+        """Add up what the streams did (every stream released every scan: none is lost); the
+        terrain trials' streams are not counted (only some methods score them)."""
+        if self.terrain:
+            return
         for stream in self._scored:
             counts = stream.counts
             if counts is None:

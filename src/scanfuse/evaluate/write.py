@@ -16,7 +16,13 @@ import yaml
 from scanfuse.evaluate import report
 from scanfuse.evaluate.closed_loop import TURNING_TRIALS
 from scanfuse.evaluate.mapping import save_map
-from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, base_config, make_simulation
+from scanfuse.evaluate.runner import (
+    Evaluation,
+    EvaluationSettings,
+    base_config,
+    make_simulation,
+    terrain_simulation,
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -74,6 +80,11 @@ def run_evaluation(
     """Run the evaluation and write everything into `out`."""
     evaluation = Evaluation(settings, progress)
     evaluation.run(jobs)
+    if not evaluation.trials and not settings.turning and evaluation.terrain_specs:
+        # Only terrain trials: the sprung robot as its parameters describe it.
+        reference, config, _ = terrain_simulation(evaluation.terrain_specs[0], settings)
+        reference.close()
+        return write_outputs(evaluation, out, config)
     first = evaluation.trials[0] if evaluation.trials else TURNING_TRIALS[settings.turning[0]]
     reference = make_simulation(first, settings)
     try:

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from scanfuse.sim.drive import PATHS, Arc, FusedController, Lap, Rotate, Straight, scripted_path
     from scanfuse.sim.errors import SimError
     from scanfuse.sim.recording import RecordSummary, record, static_transforms
-    from scanfuse.sim.robot import RobotSpec, WheelOdometry
+    from scanfuse.sim.robot import RobotSpec, Suspension, WheelOdometry
     from scanfuse.sim.sensors import (
         CAMERAS,
         LIDARS,
@@ -27,6 +27,8 @@ if TYPE_CHECKING:
         Contact,
         Controller,
         DepthFrame,
+        ImuNoise,
+        ImuSample,
         LidarFrame,
         Observation,
         SimConfig,
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
         KINDS,
         WORLDS,
         Drop,
+        Ground,
         Obstacle,
         Pose2D,
         World,
@@ -60,6 +63,10 @@ _WHERE = {
     'DepthNoise': 'sensors',
     'DROP_KINDS': 'worlds',
     'Drop': 'worlds',
+    'Ground': 'worlds',
+    'ImuNoise': 'simulation',
+    'ImuSample': 'simulation',
+    'Suspension': 'robot',
     'FusedController': 'drive',
     'KINDS': 'worlds',
     'LIDARS': 'sensors',
@@ -119,6 +126,9 @@ __all__ = [
     'DepthNoise',
     'Drop',
     'FusedController',
+    'Ground',
+    'ImuNoise',
+    'ImuSample',
     'Lap',
     'LidarFrame',
     'LidarNoise',
@@ -134,6 +144,7 @@ __all__ = [
     'Simulation',
     'StateSample',
     'Straight',
+    'Suspension',
     'Trace',
     'TruthScanner',
     'WheelOdometry',

@@ -17,6 +17,7 @@ are logged at their stamps, 50 Hz:
 | /odom | nav_msgs/Odometry | odom -> base_link |
 | /ground_truth/pose | geometry_msgs/PoseStamped | world |
 | /collisions | std_msgs/String holding JSON (see `collision_json`) | |
+| /imu | sensor_msgs/Imu, 100 Hz (`SimConfig.imu_rate`; 0: no topic) | base_link |
 
 /tf_static holds base_link -> laser and base_link -> camera_link ->
 camera_depth_optical_frame (REP-103 optical rotation).
@@ -77,6 +78,8 @@ from scanfuse.sim.simulation import (
     Contact,
     Controller,
     DepthFrame,
+    ImuNoise,
+    ImuSample,
     LidarFrame,
     SimConfig,
     Simulation,
@@ -95,6 +98,8 @@ WORLD_FRAME = 'world'
 ODOMETRY = 'nav_msgs/msg/Odometry'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 STRING = 'std_msgs/msg/String'
+IMU = 'sensor_msgs/msg/Imu'
+IMU_TOPIC = '/imu'
 COMMON_TOPICS = {
     '/tf': TF_MESSAGE,
     '/tf_static': TF_MESSAGE,
@@ -104,8 +109,8 @@ COMMON_TOPICS = {
 }
 
 
-def robot_topics(robot: RobotSpec) -> dict[str, str]:
-    """Every topic a recording of `robot` holds, with its message type."""
+def robot_topics(robot: RobotSpec, *, imu: bool = True) -> dict[str, str]:
+    """Every topic a recording of `robot` holds, with its message type (`imu`: with /imu)."""
     topics: dict[str, str] = {}
     for lidar in robot.lidars():
         topics[lidar.topic] = LASER_SCAN
@@ -116,6 +121,8 @@ def robot_topics(robot: RobotSpec) -> dict[str, str]:
     if robot.cloud is not None:
         topics[robot.cloud.topic] = POINT_CLOUD
     topics.update(COMMON_TOPICS)
+    if imu:
+        topics[IMU_TOPIC] = IMU
     return topics
 
 
@@ -249,6 +256,28 @@ def ground_truth_cdr(sample: StateSample) -> bytes:
     return serialize(message, POSE_STAMPED)
 
 
+def imu_cdr(sample: ImuSample, noise: ImuNoise) -> bytes:
+    """A sensor_msgs/Imu in base_link; the covariances are the noise's variances."""
+    import numpy as np  # noqa: PLC0415
+
+    types = typestore().types
+    vector = types['geometry_msgs/msg/Vector3']
+
+    def diagonal(sigma: float) -> Any:
+        return np.diag([sigma * sigma] * 3).ravel()
+
+    message = types[IMU](
+        header=_header(sample.stamp_ns, BASE_FRAME),
+        orientation=types['geometry_msgs/msg/Quaternion'](*sample.orientation),
+        orientation_covariance=diagonal(noise.orientation),
+        angular_velocity=vector(*sample.angular_velocity),
+        angular_velocity_covariance=diagonal(noise.angular_velocity),
+        linear_acceleration=vector(*sample.linear_acceleration),
+        linear_acceleration_covariance=diagonal(noise.linear_acceleration),
+    )
+    return serialize(message, IMU)
+
+
 def odom_transform(sample: StateSample) -> StampedTransform:
     odom = sample.odometry
     return StampedTransform(
@@ -274,6 +303,7 @@ class BagSink:
     camera_topics: dict[str, tuple[str, str]] = field(default_factory=dict)  # source -> topics
     camera_frames: dict[str, str] = field(default_factory=dict)  # source -> optical frame
     cloud_topic: str | None = None
+    imu_noise: ImuNoise | None = None  # None: no IMU topic
 
     def open(self, robot: RobotSpec) -> None:
         store = typestore()
@@ -283,7 +313,7 @@ class BagSink:
         }
         self.camera_frames = {camera.source: camera.frame for camera in robot.cameras()}
         self.cloud_topic = robot.cloud.topic if robot.cloud is not None else None
-        for topic, msgtype in robot_topics(robot).items():
+        for topic, msgtype in robot_topics(robot, imu=self.imu_noise is not None).items():
             qos = [LATCHED] if topic == '/tf_static' else []
             self.connections[topic] = self.writer.add_connection(
                 topic, msgtype, typestore=store, offered_qos_profiles=qos
@@ -319,6 +349,10 @@ class BagSink:
         self._write('/tf', sample.stamp_ns, tf_message_to_cdr([odom_transform(sample)]))
         self._write('/odom', sample.stamp_ns, odometry_cdr(sample))
         self._write('/ground_truth/pose', sample.stamp_ns, ground_truth_cdr(sample))
+
+    def on_imu(self, sample: ImuSample) -> None:
+        if self.imu_noise is not None:
+            self._write(IMU_TOPIC, sample.stamp_ns, imu_cdr(sample, self.imu_noise))
 
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None:
         self.contacts.extend(contacts)
@@ -371,7 +405,8 @@ def record(
         out.parent.mkdir(parents=True, exist_ok=True)
         with Staging(out) as staging:
             with Writer(staging.output, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
-                sink = BagSink(writer)
+                imu = config.imu_noise if config.imu_rate > 0.0 else None
+                sink = BagSink(writer, imu_noise=imu)
                 sink.open(simulation.robot)
                 simulation.run(duration, controller, sink, progress)
             written = staging.output / f'{out.name}.mcap' if single_file else staging.output

@@ -8,7 +8,14 @@ Two robots (`ROBOTS`): `default`, round, one 360-degree LiDAR and one front dept
 `amr`, a box-shaped warehouse AMR with two 270-degree LiDARs at opposite corners (front-left
 facing forward-left, rear-right facing backward-right, both at the default LiDAR's height,
 above the low obstacles), a front and a rear depth camera and a 3D LiDAR on a mast
-(PointCloud2), named and on the topics of examples/scanfuse_multi.yaml.
+(PointCloud2), named and on the topics of examples/scanfuse_multi.yaml; `sprung`, the default
+robot on a suspension (`Suspension`): its body sits on a sprung pitch hinge over a running
+gear whose drive wheels ride on preloaded springs, so the body pitches nose-down when it
+brakes, nose-up when it sets off, and rocks over a ramp's foot and a sill, as a real robot's
+does (1.5-3 degrees braking hard from its cruising speed).
+
+Every robot carries an IMU at base_link's origin (site `robot/imu`: MuJoCo's gyro and
+accelerometer there; the orientation is the base's).
 """
 
 from __future__ import annotations
@@ -83,6 +90,52 @@ class CloudMount:
 
 
 @dataclass(frozen=True)
+class Suspension:
+    """The body on a sprung pitch hinge over the running gear (wheels and casters), the
+    drive wheels on springs under the running gear.
+
+    The hinge's axis is base_link's y axis through its origin; `stiffness` (N m/rad) and
+    `damping` (N m s/rad) hold the body level, `travel` (radians) limits its pitch either way.
+    Braking pitches the body nose-down on its hinge and the running gear on its wheel springs
+    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.1 degrees at
+    the peak braking hard (the wheels' torque limit) from 0.35 m/s, about as much nose-up
+    setting off; climbing a ramp it leans back 1-2 degrees beyond the ramp's angle. A rigid
+    robot with two casters cannot climb onto a ramp: the caster ahead of the wheels rides up
+    the ramp's foot and lifts them off the floor.
+    """
+
+    stiffness: float = 3000.0
+    damping: float = 30.0
+    travel: float = math.radians(6.0)
+    # Each drive wheel on a slide along z, pressed down by a spring compressed
+    # `wheel_preload` (metres) at its nominal place: 2500 N/m x 1.5 cm carries 37.5 N of each
+    # wheel's ~43 N share (the casters the rest), so a caster riding 1 cm up lifts little of
+    # it off and the wheels slip no more than the rigid robot's when it sets off and brakes.
+    wheel_stiffness: float = 2500.0
+    wheel_damping: float = 300.0
+    wheel_preload: float = 0.015
+
+    def __post_init__(self) -> None:
+        if not (self.stiffness > 0.0 and self.damping >= 0.0 and 0.0 < self.travel < 0.5):
+            msg = (
+                f'suspension needs stiffness > 0 N m/rad, damping >= 0 N m s/rad and travel '
+                f'in (0, 0.5) rad, got {self.stiffness}, {self.damping}, {self.travel}'
+            )
+            raise SimError(msg)
+        wheels = (self.wheel_stiffness, self.wheel_damping, self.wheel_preload)
+        if not (wheels[0] > 0.0 and wheels[1] >= 0.0 and 0.0 < wheels[2] < 0.05):
+            msg = (
+                f'suspension needs wheel_stiffness > 0 N/m, wheel_damping >= 0 N s/m and '
+                f'wheel_preload in (0, 0.05) m, got {wheels[0]}, {wheels[1]}, {wheels[2]}'
+            )
+            raise SimError(msg)
+
+
+IMU_SITE = 'robot/imu'
+RUNNING_GEAR = 'robot/running_gear'  # a sprung robot's wheels and casters (`Suspension`)
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """Dimensions of the robot and where its sensors sit on it (metres, radians).
 
@@ -116,6 +169,7 @@ class RobotSpec:
     rear_camera: Mount | None = None  # a second depth camera, the first's model and pitch
     lidar_model: str = 'rplidar-a2'  # the LiDAR profile it carries unless told otherwise
     cloud: CloudMount | None = None  # a 3D LiDAR (PointCloud2), the `cloud` profile of SimConfig
+    suspension: Suspension | None = None  # a sprung body and wheels (None: one rigid body)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lidar_height < 3.0:
@@ -182,14 +236,27 @@ class RobotSpec:
         half = self.wheel_separation / 2
         return (v - omega * half) / self.wheel_radius, (v + omega * half) / self.wheel_radius
 
-    def mjcf(self, start: Pose2D) -> str:
-        """The robot body with a free joint, placed at `start`."""
+    def mjcf(self, start: Pose2D, mounted: str = '') -> str:
+        """The robot body with a free joint, placed at `start`; `mounted` (MJCF: the cameras)
+        goes into the body that carries the sensors (base_link)."""
         group = ROBOT_GEOM_GROUP
         half_height = (self.body_top - self.body_bottom) / 2
         r = self.wheel_radius
         y = self.wheel_separation / 2
+        spring = self.suspension
+        # A sprung robot's wheels slide along z, pressed down by a preloaded spring: they
+        # keep their grip when a caster rides up a ramp's foot ahead of them.
+        wheel_spring = (
+            ''
+            if spring is None
+            else f'<joint name="{{side}}_wheel_spring" type="slide" axis="0 0 1" '
+            f'stiffness="{spring.wheel_stiffness:.6g}" damping="{spring.wheel_damping:.6g}" '
+            f'springref="{-spring.wheel_preload:.6g}" '
+            f'range="{-2 * spring.wheel_preload:.6g} {spring.wheel_preload:.6g}" limited="true"/>'
+        )
         wheels = ''.join(
             f'<body name="robot/{side}_wheel" pos="0 {sign * y:.6g} {r:.6g}">'
+            f'{wheel_spring.format(side=side)}'
             f'<joint name="{side}_wheel" type="hinge" axis="0 1 0" damping="0.01"/>'
             f'<geom name="robot/{side}_wheel" type="cylinder" size="{r:.6g} 0.012" '
             f'euler="1.5707963267948966 0 0" mass="0.3" '
@@ -209,13 +276,43 @@ class RobotSpec:
             shape = (
                 f'type="box" size="{self.chassis[0]:.6g} {self.chassis[1]:.6g} {half_height:.6g}"'
             )
-        return (
-            f'<body name="{ROBOT_BODY}" pos="{start.x:.6g} {start.y:.6g} 0" '
-            f'euler="0 0 {start.yaw:.9g}">'
-            '<freejoint name="robot_root"/>'
+        body = (
             f'<geom name="robot/chassis" {shape} pos="0 0 {self.body_bottom + half_height:.6g}" '
             f'mass="{self.mass:.6g}" group="{group}" rgba="0.2 0.4 0.8 1"/>'
-            f'{casters}{wheels}</body>'
+            f'<site name="{IMU_SITE}" pos="0 0 0" size="0.01" group="{group}"/>{mounted}'
+        )
+        place = f'pos="{start.x:.6g} {start.y:.6g} 0" euler="0 0 {start.yaw:.9g}"'
+        if spring is None:
+            return (
+                f'<body name="{ROBOT_BODY}" {place}><freejoint name="robot_root"/>'
+                f'{body}{casters}{wheels}</body>'
+            )
+        # The wheels and casters ride on a running gear; the body (base_link, with every
+        # sensor) sits on it on a pitch hinge through base_link's origin, held by a spring.
+        return (
+            f'<body name="{RUNNING_GEAR}" {place}><freejoint name="robot_root"/>{casters}{wheels}'
+            f'<body name="{ROBOT_BODY}" pos="0 0 0">'
+            f'<joint name="suspension" type="hinge" axis="0 1 0" '
+            f'stiffness="{spring.stiffness:.6g}" damping="{spring.damping:.6g}" '
+            f'range="{-spring.travel:.6g} {spring.travel:.6g}" limited="true"/>'
+            f'{body}</body></body>'
+        )
+
+    def contact_mjcf(self) -> str:
+        """Pairs that never collide: a sprung body and the wheels beside it on the running
+        gear (a body and its own wheels are parent and child, excluded already)."""
+        if self.suspension is None:
+            return ''
+        return ''.join(
+            f'<exclude body1="{ROBOT_BODY}" body2="robot/{side}_wheel"/>'
+            for side in ('left', 'right')
+        )
+
+    def sensors_mjcf(self) -> str:
+        """The IMU's gyro and accelerometer at base_link's origin (`IMU_SITE`)."""
+        return (
+            f'<gyro name="imu_gyro" site="{IMU_SITE}"/>'
+            f'<accelerometer name="imu_accelerometer" site="{IMU_SITE}"/>'
         )
 
     def actuators_mjcf(self) -> str:
@@ -273,7 +370,9 @@ AMR = RobotSpec(
     # On a mast, 1.1 m up: it sees what stands above the robot's height.
     cloud=CloudMount('livox', 'livox_frame', '/livox/points', 0.0, 0.0, 1.1),
 )
-ROBOTS: dict[str, RobotSpec] = {'default': RobotSpec(), 'amr': AMR}
+# The default robot on sprung casters (`Suspension`): its body pitches with acceleration.
+SPRUNG = RobotSpec(name='sprung', suspension=Suspension())
+ROBOTS: dict[str, RobotSpec] = {'default': RobotSpec(), 'amr': AMR, 'sprung': SPRUNG}
 
 
 def robot_spec(name: str) -> RobotSpec:

@@ -24,9 +24,14 @@ step as a real one's do:
   LiDAR (`RobotSpec.cloud`, profile `SimConfig.cloud`) casts a whole cloud at once at its
   stamp, a quarter period after the start, and delivers it the profile's latency later.
 
-Falls: at every state sample the base's height is compared with where it settled; once it
-is more than `FALL_DEPTH` lower, the base has left the floor plane (a ledge, a stair, a
-hole) and `Simulation.fell_ns` holds the stamp of that first sample.
+- **IMU** (`imu_rate`, 100 Hz; 0: none): base_link's orientation in the world (its yaw
+  included; noise `ImuNoise`), MuJoCo's gyro and accelerometer at base_link's origin, on
+  every robot (`ImuSample`, recorded on /imu).
+
+Falls: at every state sample the base's height is compared with where it settled, above the
+ground under it (`World.surface_height`: a ramp's surface, a platform's); once it is more
+than `FALL_DEPTH` lower, the base has left the ground (a ledge, a stair, a hole) and
+`Simulation.fell_ns` holds the stamp of that first sample.
 
 A scan's ground truth (`LidarFrame.truth`) is the exact truth scan from the LiDAR's true
 pose at the scan's stamp (its first beam), the instant a de-skewed, motion-compensated
@@ -115,6 +120,17 @@ def yaw_matrix(yaw: float) -> Matrix:
 
 
 @dataclass(frozen=True)
+class ImuNoise:
+    """Gaussian noise of the simulated IMU: orientation (radians about each axis), angular
+    velocity (rad/s), linear acceleration (m/s^2), one sigma each: a consumer-grade IMU's
+    fused orientation holds pitch and roll to about 0.1 degree."""
+
+    orientation: float = math.radians(0.1)
+    angular_velocity: float = 0.002
+    linear_acceleration: float = 0.02
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """Everything that defines one simulated run apart from the driving."""
 
@@ -139,6 +155,8 @@ class SimConfig:
     max_obstacle_height: float = _DEFAULTS.max_obstacle_height
     sensor_stagger: float = 0.5  # share of a period between a robot's two LiDARs (cameras)
     cloud: str = 'mid360'  # the 3D LiDAR's profile, on a robot that carries one
+    imu_rate: float = 100.0  # Hz; 0: no IMU samples
+    imu_noise: ImuNoise = field(default_factory=ImuNoise)
 
     def __post_init__(self) -> None:
         if self.depth_rate is not None and not 0.0 < self.depth_rate <= 1000.0:
@@ -157,6 +175,9 @@ class SimConfig:
             raise SimError(msg)
         if not 0.0 < self.state_rate <= 1000.0:
             msg = f'state_rate {self.state_rate} Hz must be in (0, 1000]'
+            raise SimError(msg)
+        if not 0.0 <= self.imu_rate <= 1000.0:
+            msg = f'imu_rate {self.imu_rate} Hz must be in [0, 1000] (0: no IMU)'
             raise SimError(msg)
         if not 0.0 <= self.sensor_stagger < 1.0:
             msg = f'sensor_stagger {self.sensor_stagger} must be in [0, 1) of a period'
@@ -353,6 +374,26 @@ class StateSample:
 
 
 @dataclass(frozen=True)
+class ImuSample:
+    """What the IMU (frame base_link) measured at one instant: orientation in the world
+    (quaternion x, y, z, w), angular velocity (rad/s) and linear acceleration (m/s^2, gravity
+    included, as a sensor_msgs/Imu holds it), both in base_link."""
+
+    stamp_ns: int
+    orientation: tuple[float, float, float, float]
+    angular_velocity: tuple[float, float, float]
+    linear_acceleration: tuple[float, float, float]
+
+    @property
+    def roll_pitch(self) -> tuple[float, float]:
+        """Roll and pitch (radians; pitch positive nose-down, REP-103) of the orientation."""
+        x, y, z, w = self.orientation
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        return roll, pitch
+
+
+@dataclass(frozen=True)
 class Contact:
     """A contact between a robot geom and an obstacle geom."""
 
@@ -386,6 +427,7 @@ class Sink(Protocol):
     def on_state(self, sample: StateSample) -> None: ...
     def on_contacts(self, stamp_ns: int, contacts: list[Contact]) -> None: ...
     def on_cloud(self, frame: CloudFrame) -> None: ...
+    def on_imu(self, sample: ImuSample) -> None: ...
 
 
 @dataclass
@@ -397,9 +439,13 @@ class Trace:
     states: list[StateSample] = field(default_factory=list)
     contacts: list[Contact] = field(default_factory=list)
     clouds: list[CloudFrame] = field(default_factory=list)
+    imu: list[ImuSample] = field(default_factory=list)
 
     def on_lidar(self, frame: LidarFrame) -> None:
         self.lidar.append(frame)
+
+    def on_imu(self, sample: ImuSample) -> None:
+        self.imu.append(sample)
 
     def on_cloud(self, frame: CloudFrame) -> None:
         self.clouds.append(frame)
@@ -416,7 +462,7 @@ class Trace:
 
 
 # Events at the same physics step happen in this order.
-_STATE, _EXPOSE, _SWEEP, _BEAMS, _DELIVER_DEPTH, _DELIVER_SCAN = range(6)
+_STATE, _EXPOSE, _SWEEP, _BEAMS, _DELIVER_DEPTH, _DELIVER_SCAN, _IMU = range(7)
 # The examples' cloud range (examples/scanfuse_multi.yaml), metres from the output origin.
 OBSTACLE_CLOUD_RANGE = 8.0
 
@@ -448,20 +494,21 @@ def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
             f'xyaxes="{" ".join(f"{v:.9g}" for v in (*x_axis, *y_axis))}" '
             f'fovy="{math.degrees(camera.vertical_fov):.9g}"/>'
         )
-    # The camera belongs to the chassis body, not to the first wheel.
-    body = robot.mjcf(world.start)
-    body = body[: -len('</body>')] + camera_xml + '</body>'
+    # The camera belongs to the body that carries the sensors, not to a wheel.
+    body = robot.mjcf(world.start, camera_xml)
     return f"""<mujoco model="scanfuse_{world.name}">
 <compiler angle="radian"/>
 <option timestep="{config.timestep:.6g}" integrator="implicitfast"/>
 <visual><global offwidth="{width}" offheight="{height}"/><map znear="0.01" zfar="50"/></visual>
-<asset>{''.join(world.assets)}</asset>
+<asset>{''.join(world.all_assets())}</asset>
 <worldbody>
 <light pos="0 0 4" dir="0 0 -1" directional="true"/>
 {world.worldbody_mjcf()}
 {body}
 </worldbody>
+<contact>{robot.contact_mjcf()}</contact>
 <actuator>{robot.actuators_mjcf()}</actuator>
+<sensor>{robot.sensors_mjcf()}</sensor>
 </mujoco>"""
 
 
@@ -580,6 +627,13 @@ class Simulation:
                 len(self.lidar_mounts) + len(self.camera_mounts) + 1
             )[-1]
         )
+        self._imu_rng = np.random.default_rng(
+            np.random.SeedSequence(config.seed).spawn(
+                len(self.lidar_mounts) + len(self.camera_mounts) + 2
+            )[-1]
+        )
+        self._gyro = self.model.sensor('imu_gyro').adr[0]
+        self._accelerometer = self.model.sensor('imu_accelerometer').adr[0]
         self.odometry = WheelOdometry(self.robot.wheel_radius, self.robot.wheel_separation)
         self._settle()
 
@@ -806,8 +860,40 @@ class Simulation:
         return found
 
     def base_drop(self) -> float:
-        """How far the base is below where it settled on the floor, metres."""
-        return self._rest_z - float(self.data.xpos[self._body][2])
+        """How far the base is below where it settled, above the ground under it, metres."""
+        x, y, z = (float(value) for value in self.data.xpos[self._body])
+        ground = float(self.world.surface_height(np.array([x]), np.array([y]))[0])
+        return self._rest_z + ground - z
+
+    def imu(self) -> ImuSample:
+        """The IMU's reading now (noise `SimConfig.imu_noise` when `noise` is on)."""
+        w, x, y, z = (float(value) for value in self.data.xquat[self._body])
+        gyro = np.array(self.data.sensordata[self._gyro : self._gyro + 3], dtype=np.float64)
+        accel = np.array(
+            self.data.sensordata[self._accelerometer : self._accelerometer + 3], dtype=np.float64
+        )
+        if self.config.noise:
+            noise = self.config.imu_noise
+            rng = self._imu_rng
+            tilt = rng.normal(0.0, noise.orientation, 3)
+            half = np.linalg.norm(tilt) / 2
+            axis = tilt / (2 * half) if half > 0.0 else np.zeros(3)
+            # q * dq: a small rotation about base_link's own axes.
+            dw, (dx, dy, dz) = math.cos(half), math.sin(half) * axis
+            w, x, y, z = (
+                w * dw - x * dx - y * dy - z * dz,
+                w * dx + x * dw + y * dz - z * dy,
+                w * dy - x * dz + y * dw + z * dx,
+                w * dz + x * dy - y * dx + z * dw,
+            )
+            gyro += rng.normal(0.0, noise.angular_velocity, 3)
+            accel += rng.normal(0.0, noise.linear_acceleration, 3)
+        return ImuSample(
+            self.stamp_ns,
+            (x, y, z, w),
+            (float(gyro[0]), float(gyro[1]), float(gyro[2])),
+            (float(accel[0]), float(accel[1]), float(accel[2])),
+        )
 
     def check_fall(self) -> bool:
         """Whether the base has left the floor plane (now or before); records the first time."""
@@ -839,7 +925,8 @@ class Simulation:
         self._step = 0
         self.data.qvel[:] = 0.0
         self._update_odometry(0.0)
-        self._rest_z = float(self.data.xpos[self._body][2])
+        x, y, z = (float(value) for value in self.data.xpos[self._body])
+        self._rest_z = z - float(self.world.surface_height(np.array([x]), np.array([y]))[0])
 
     def _update_odometry(self, dt: float) -> None:
         self.odometry.update(
@@ -970,7 +1057,13 @@ class Simulation:
             if step + cloud_latency <= end:
                 at(step, _EXPOSE, lambda: cast_cloud(index))
 
+        def imu(index: int) -> None:
+            sink.on_imu(self.imu())
+            at(step_of((index + 1) / self.config.imu_rate), _IMU, lambda: imu(index + 1))
+
         at(start, _STATE, lambda: state(0))
+        if self.config.imu_rate > 0.0:
+            at(start, _IMU, lambda: imu(0))
         if self.cloud_mount is not None:
             schedule_cloud(0)
         for camera in range(len(self.camera_mounts)):

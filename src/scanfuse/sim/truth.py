@@ -15,6 +15,11 @@ exactly: where the interval's bounding rays cross the edge, at an edge end
 the interval. No sub-sampling of the angle is involved. Circles are polygons
 inscribed to within 0.2 mm (`worlds.MAX_SAGITTA`).
 
+Heights are above the ground each obstacle stands on (`Obstacle.ground`: 0 on the floor, a
+ramp's or a platform's surface under a box on it; `Obstacle.overlaps_slab`). Ramps, platforms
+and sills (`worlds.Ground`) are floor and never enter the truth: a ramp's surface is never an
+obstacle, a box standing on it is one when its top is inside the slab above the ramp.
+
 A drop-off (`worlds.Drop`, floor missing over a rectangle) is an obstacle whatever the
 slab: its footprint joins the obstacles', so each slot's range to the drop's nearest
 edge is the range the robot must stop short of.

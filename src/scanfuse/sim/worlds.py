@@ -13,13 +13,20 @@ rectangle where the floor is missing), and a plane named `floor` lies at the bot
 the deepest drop. The robot really falls there. The truth scan holds each drop's
 rectangle as an obstacle footprint (`TruthScanner`): its nearest edge is where the
 robot must stop.
+
+Terrain worlds (`ramp-12`, `ramp-8`, `ramp-ledge`, `sills`) have ground that is not one
+plane: `Ground` pieces (ramps, platforms, door sills) whose surfaces are floor, not obstacles.
+Each piece is an axis-aligned rectangle whose top rises linearly along x; `World.surface_height`
+is the height of the ground the robot drives on at any place. An obstacle standing on raised
+ground carries that ground's height (`Obstacle.ground`): every height of the collision slab is
+measured above it, so a ramp's surface is never an obstacle and a box on it is.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -69,6 +76,9 @@ class Obstacle:
     z_min: float
     z_max: float
     mjcf: str = field(repr=False)
+    # Height of the ground it stands on (the lowest under its footprint), metres: the slab's
+    # heights are measured above it (0 on the floor; a ramp's or a platform's surface).
+    ground: float = 0.0
 
     def __post_init__(self) -> None:
         footprint = np.asarray(self.footprint, dtype=np.float64)
@@ -81,8 +91,13 @@ class Obstacle:
         object.__setattr__(self, 'footprint', footprint)
 
     def overlaps_slab(self, low: float, high: float) -> bool:
-        """Whether any part of the obstacle lies at a height inside [low, high]."""
-        return self.z_min <= high and self.z_max >= low
+        """Whether any part of the obstacle lies at a height above its ground inside [low, high]."""
+        return self.z_min - self.ground <= high and self.z_max - self.ground >= low
+
+    @property
+    def top(self) -> float:
+        """Height of its top above the ground it stands on, metres."""
+        return self.z_max - self.ground
 
 
 @dataclass(frozen=True)
@@ -133,6 +148,79 @@ class Drop:
         ]
 
 
+GROUND_KINDS = ('ramp', 'platform', 'sill')
+# A ground piece's solid reaches this far below its lowest surface (into the floor beneath),
+# metres: its mesh never has two vertices in one place, and no gap shows at its foot.
+GROUND_FOOTING = 0.01
+
+
+@dataclass(frozen=True)
+class Ground:
+    """A piece of ground above (or below) the floor: a ramp, a platform or a door sill.
+
+    Over the rectangle x_min..x_max by y_min..y_max (world, metres) its top surface rises
+    linearly along x from `z_start` (at x_min) to `z_end` (at x_max); it is solid down to
+    below both. Its surface is floor: the robot drives on it and it is never an obstacle.
+    """
+
+    name: str
+    kind: str
+    rectangle: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
+    z_start: float
+    z_end: float
+
+    def __post_init__(self) -> None:
+        x_min, x_max, y_min, y_max = self.rectangle
+        if not (x_max > x_min and y_max > y_min):
+            msg = (
+                f'ground {self.name!r} needs x_min < x_max and y_min < y_max, got {self.rectangle}'
+            )
+            raise SimError(msg)
+        if self.kind not in GROUND_KINDS:
+            msg = f'ground {self.name!r} kind {self.kind!r} is not one of {", ".join(GROUND_KINDS)}'
+            raise SimError(msg)
+
+    @property
+    def slope(self) -> float:
+        """Rise per metre along +x (negative: going down)."""
+        x_min, x_max, _, _ = self.rectangle
+        return (self.z_end - self.z_start) / (x_max - x_min)
+
+    @property
+    def footprint(self) -> Polygon:
+        x_min, x_max, y_min, y_max = self.rectangle
+        return np.array([[x_min, y_min], [x_max, y_min], [x_max, y_max], [x_min, y_max]])
+
+    def contains(
+        self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.bool_]:
+        x_min, x_max, y_min, y_max = self.rectangle
+        inside: npt.NDArray[np.bool_] = (x >= x_min) & (x <= x_max) & (y >= y_min) & (y <= y_max)
+        return inside
+
+    def height(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Its surface's height at x (along the rise; outside its x span, the nearer end's)."""
+        x_min, x_max, _, _ = self.rectangle
+        along = np.clip(x, x_min, x_max) - x_min
+        rise: npt.NDArray[np.float64] = self.z_start + self.slope * along
+        return rise
+
+    def mjcf(self, rgba: str) -> str:
+        """A convex mesh geom (its asset inline through `asset`) named after the piece."""
+        return f'<geom name="{self.name}" type="mesh" mesh="{self.name}_mesh" pos="0 0 0" {rgba}/>'
+
+    def asset(self) -> str:
+        x_min, x_max, y_min, y_max = self.rectangle
+        bottom = min(self.z_start, self.z_end) - GROUND_FOOTING
+        vertices = [
+            (x, y, z)
+            for x, top in ((x_min, self.z_start), (x_max, self.z_end))
+            for y in (y_min, y_max)
+            for z in (bottom, top)
+        ]
+        return f'<mesh name="{self.name}_mesh" vertex="{_fmt(*np.ravel(vertices))}"/>'
+
+
 @dataclass(frozen=True)
 class Pose2D:
     """A planar pose: position (metres) and heading (radians, counter-clockwise from +x)."""
@@ -153,6 +241,7 @@ class World:
     bounds: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max of the room inside
     assets: tuple[str, ...] = ()
     drops: tuple[Drop, ...] = ()
+    ground: tuple[Ground, ...] = ()
 
     def kind_of(self, geom_name: str) -> str:
         """The kind label of an obstacle geom ('floor' for the floor, '' for robot parts)."""
@@ -161,6 +250,7 @@ class World:
     def kinds(self) -> dict[str, str]:
         """Geom name -> kind, for every obstacle and every piece of floor ('floor')."""
         kinds = {name: 'floor' for name, _ in self._floor_pieces()}
+        kinds.update({piece.name: 'floor' for piece in self.ground})
         kinds.update({obstacle.name: obstacle.kind for obstacle in self.obstacles})
         return kinds
 
@@ -172,7 +262,31 @@ class World:
     def worldbody_mjcf(self) -> str:
         """The floor and every obstacle geom, to be placed in `<worldbody>`."""
         pieces = [geom for _, geom in self._floor_pieces()]
+        pieces += [piece.mjcf(GROUND_RGBA) for piece in self.ground]
         return '\n'.join([*pieces, *(obstacle.mjcf for obstacle in self.obstacles)])
+
+    def all_assets(self) -> tuple[str, ...]:
+        """The obstacles' mesh assets and every ground piece's."""
+        return (*self.assets, *(piece.asset() for piece in self.ground))
+
+    def surface_height(
+        self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.float64]:
+        """Height of the ground to drive on at each place, metres: the highest ground piece
+        there, else the floor (z = 0; over a drop too: its floor is missing, not lower)."""
+        return surface_height(self.ground, x, y)
+
+    def on_slope(self, x: float, y: float, reach: float = 0.0) -> bool:
+        """Whether a sloped piece of ground (a ramp) lies within `reach` of (x, y), metres."""
+        for piece in self.ground:
+            if piece.kind != 'ramp':
+                continue
+            x_min, x_max, y_min, y_max = piece.rectangle
+            dx = max(x_min - x, 0.0, x - x_max)
+            dy = max(y_min - y, 0.0, y - y_max)
+            if math.hypot(dx, dy) <= reach:
+                return True
+        return False
 
     def _floor_pieces(self) -> list[tuple[str, str]]:
         """(geom name, MJCF) of the floor: one plane, or blocks around the drops and a plane
@@ -197,6 +311,9 @@ class World:
                 name = f'{drop.name}_tread_{index}'
                 pieces.append(_block(name, (x0, x1, y0, y1), (bottom, top), rgba))
         return pieces
+
+
+GROUND_RGBA = 'rgba="0.75 0.75 0.7 1" friction="1 0.005 0.0001"'
 
 
 def _block(
@@ -625,6 +742,222 @@ def hole_world(
     return _drop_world('hole', seed, (hatch,), ROBOT_AT_ORIGIN)
 
 
+# ---------------------------------------------------------------- terrain
+
+RAMP_WIDTH = 1.2  # metres between the ramp's side walls (or its wall and its ledge)
+RAMP_RISE = 0.15  # metres from the floor to the platform
+RAMP_FOOT = 1.6  # x of the up ramp's foot: the robot starts at the origin facing it
+PLATFORM_LENGTH = 1.2  # metres of level platform between the up and the down ramp
+TERRAIN_HALF_WIDTH = 1.3  # the terrain rooms' inner half width, metres
+RUN_OUT = 1.8  # metres of floor past the down ramp's foot
+TERRAIN_JITTER = 0.04  # metres, a seeded box's shift
+TERRAIN_BOX_HEIGHTS = (0.06, 0.12)  # metres above the ground it stands on
+
+
+def surface_height(
+    pieces: tuple[Ground, ...] | list[Ground],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """The highest of `pieces` at each place, the floor (0) where none is."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    height = np.zeros(np.broadcast(x, y).shape)
+    covered = np.zeros(height.shape, dtype=bool)
+    for piece in pieces:
+        inside = piece.contains(x, y)
+        top = np.broadcast_to(piece.height(x), height.shape)
+        height = np.where(inside & covered, np.maximum(height, top), height)
+        height = np.where(inside & ~covered, top, height)
+        covered |= inside
+    return height
+
+
+def ramp_pieces(
+    prefix: str, foot: float, grade: float, rise: float, half_width: float
+) -> list[Ground]:
+    """A ramp of 1:`grade` up from the floor at x = `foot` to a level platform `rise` m high,
+    `PLATFORM_LENGTH` long, and an equal ramp down again; `half_width` either side of y = 0."""
+    run = grade * rise
+    top = foot + run
+    down = top + PLATFORM_LENGTH
+    sides = (-half_width, half_width)
+    return [
+        Ground(f'{prefix}_up', 'ramp', (foot, top, *sides), 0.0, rise),
+        Ground(f'{prefix}_platform', 'platform', (top, down, *sides), rise, rise),
+        Ground(f'{prefix}_down', 'ramp', (down, down + run, *sides), rise, 0.0),
+    ]
+
+
+def box_on_ground(
+    name: str,
+    pieces: tuple[Ground, ...] | list[Ground],
+    centre: tuple[float, float],
+    half: tuple[float, float],
+    height: float,
+    *,
+    yaw: float = 0.0,
+) -> Obstacle:
+    """A low box standing on whatever ground is under it: its top `height` m above the ground
+    at its centre, its bottom at the lowest ground under its corners (the rest of it is sunk
+    into the slope), that lowest ground its `ground`."""
+    corners = rectangle(centre[0], centre[1], half[0], half[1], yaw)
+    under = surface_height(pieces, corners[:, 0], corners[:, 1])
+    at_centre = float(surface_height(pieces, np.array([centre[0]]), np.array([centre[1]]))[0])
+    ground = float(under.min())
+    obstacle = box(
+        name, 'low_box', centre, half, (ground, at_centre + height), yaw=yaw, rgba='0.8 0.6 0.2 1'
+    )
+    return replace(obstacle, ground=ground)
+
+
+def _terrain_box(
+    rng: np.random.Generator,
+    name: str,
+    pieces: list[Ground],
+    centre: tuple[float, float],
+    half: tuple[float, float],
+) -> Obstacle:
+    dx, dy = rng.uniform(-TERRAIN_JITTER, TERRAIN_JITTER, 2)
+    height = float(rng.uniform(*TERRAIN_BOX_HEIGHTS))
+    return box_on_ground(name, pieces, (centre[0] + dx, centre[1] + dy), half, height)
+
+
+def _side_wall(name: str, x: tuple[float, float], y: tuple[float, float]) -> Obstacle:
+    """A solid wall block filling x by y (a ramp's side)."""
+    return box(
+        name,
+        'wall',
+        ((x[0] + x[1]) / 2, (y[0] + y[1]) / 2),
+        ((x[1] - x[0]) / 2, (y[1] - y[0]) / 2),
+        (0.0, WALL_HEIGHT),
+        rgba='0.9 0.9 0.85 1',
+    )
+
+
+def ramp_world(
+    seed: int = 0, *, grade: float = 12.0, rise: float = RAMP_RISE, blocked: bool = False
+) -> World:
+    """A ramp of 1:`grade` up to a platform and down again, between walls (a corridor between
+    two wings), `RAMP_WIDTH` wide, its foot 1.6 m ahead of the robot.
+
+    Low boxes (6-12 cm above the ground under them, seeded heights and shifts): one on the up
+    ramp and one on the platform, each against a side wall (the passage beside it is 0.85 m
+    or more); one on the floor beside the ramp's mouth, one in the approach, one past the
+    down ramp's foot. `blocked`: the platform's box stands on the ramp's centre line instead.
+    """
+    rng = np.random.default_rng(seed + 11000)
+    half = RAMP_WIDTH / 2
+    pieces = ramp_pieces('ramp', RAMP_FOOT, grade, rise, half)
+    foot, end = pieces[0].rectangle[0], pieces[-1].rectangle[1]
+    bounds = (-1.0, end + RUN_OUT, -TERRAIN_HALF_WIDTH, TERRAIN_HALF_WIDTH)
+    obstacles = room_walls(bounds)
+    for sign, wall in ((1.0, 'left'), (-1.0, 'right')):
+        low, high = sorted((sign * half, sign * TERRAIN_HALF_WIDTH))
+        obstacles.append(_side_wall(f'ramp_wall_{wall}', (foot, end), (low, high)))
+    side = 1.0 if rng.uniform() < 0.5 else -1.0
+    up, platform = pieces[0].rectangle, pieces[1].rectangle
+    size = (0.15, 0.1)
+    obstacles += [
+        _terrain_box(rng, 'box_on_ramp', pieces, ((up[0] + up[1]) / 2, side * 0.46), size),
+        _terrain_box(
+            rng,
+            'box_on_platform',
+            pieces,
+            ((platform[0] + platform[1]) / 2, 0.0 if blocked else -side * 0.46),
+            size,
+        ),
+        _terrain_box(rng, 'box_beside_ramp', pieces, (foot - 0.35, side * 0.95), size),
+        _terrain_box(rng, 'box_approach', pieces, (0.75, -side * 0.55), size),
+        _terrain_box(rng, 'box_run_out', pieces, (end + 0.6, side * 0.6), size),
+    ]
+    name = f'ramp-{grade:g}'
+    return World(name, seed, tuple(obstacles), ROBOT_AT_ORIGIN, bounds, ground=tuple(pieces))
+
+
+def ramp12_world(seed: int = 0) -> World:
+    """A wheelchair ramp, 1:12 (4.8 degrees), 0.15 m up to a platform and down again."""
+    return ramp_world(seed, grade=12.0)
+
+
+def ramp8_world(seed: int = 0) -> World:
+    """A steeper ramp, 1:8 (7.1 degrees), 0.15 m up to a platform and down again."""
+    return ramp_world(seed, grade=8.0)
+
+
+LEDGE_DEPTH = 0.4  # metres from the floor down to the yard beside the ledge ramp
+LEDGE_START = Pose2D(0.0, -0.85, 0.0)
+
+
+def ramp_ledge_world(
+    seed: int = 0, *, grade: float = 8.0, rise: float = RAMP_RISE, depth: float = LEDGE_DEPTH
+) -> World:
+    """A 1:`grade` ramp up to a platform and down again with a ledge along its right side:
+    the floor south of the ramp is missing (a yard `depth` m down) for the ramp's whole
+    length; a wall runs along its left side.
+
+    The robot starts south of the ramp's centre line: the straight line to its goal, past the
+    ramp, crosses the yard; the ramp is the way. A low box stands on the platform against the
+    wall (seeded).
+    """
+    rng = np.random.default_rng(seed + 12000)
+    half = RAMP_WIDTH / 2
+    pieces = ramp_pieces('ramp', RAMP_FOOT, grade, rise, half)
+    foot, end = pieces[0].rectangle[0], pieces[-1].rectangle[1]
+    bounds = (-1.0, end + RUN_OUT, -TERRAIN_HALF_WIDTH, TERRAIN_HALF_WIDTH)
+    yard = Drop('ledge', 'ledge', (foot, end, -TERRAIN_HALF_WIDTH, -half), depth)
+    obstacles = room_walls(bounds, bottom=-depth)
+    obstacles.append(_side_wall('ramp_wall_left', (foot, end), (half, TERRAIN_HALF_WIDTH)))
+    middle = (pieces[1].rectangle[0] + pieces[1].rectangle[1]) / 2
+    obstacles.append(_terrain_box(rng, 'box_on_platform', pieces, (middle, 0.46), (0.15, 0.1)))
+    return World(
+        'ramp-ledge',
+        seed,
+        tuple(obstacles),
+        LEDGE_START,
+        bounds,
+        drops=(yard,),
+        ground=tuple(pieces),
+    )
+
+
+SILL_BEVEL = 2.0  # a sill's bevel runs this many times its height (1:2, 27 degrees)
+SILL_TOP = 0.04  # metres of level top, across the door's wall
+DOOR_WIDTH = 0.9
+
+
+def sill_pieces(prefix: str, x: float, height: float, y: tuple[float, float]) -> list[Ground]:
+    """A door sill across x = `x`: a bevel up, a level top `SILL_TOP` long, a bevel down."""
+    bevel = SILL_BEVEL * height
+    left, right = x - SILL_TOP / 2, x + SILL_TOP / 2
+    return [
+        Ground(f'{prefix}_in', 'sill', (left - bevel, left, *y), 0.0, height),
+        Ground(f'{prefix}_top', 'sill', (left, right, *y), height, height),
+        Ground(f'{prefix}_out', 'sill', (right, right + bevel, *y), height, 0.0),
+    ]
+
+
+def sills_world(seed: int = 0) -> World:
+    """Three rooms in a row joined by doors 0.9 m wide, each door with a sill 1-2 cm high
+    (bevelled 1:2, seeded heights and door positions); a low box in the middle room beside the
+    line between the doors."""
+    rng = np.random.default_rng(seed + 13000)
+    bounds = (-1.0, 5.6, -1.5, 1.5)
+    obstacles = room_walls(bounds)
+    pieces: list[Ground] = []
+    t = WALL_THICKNESS / 2
+    for index, x in enumerate((1.5, 3.6)):
+        centre = float(rng.uniform(-0.25, 0.25))
+        height = float(rng.uniform(0.01, 0.02))
+        low, high = centre - DOOR_WIDTH / 2, centre + DOOR_WIDTH / 2
+        obstacles.append(_side_wall(f'door{index}_right', (x - t, x + t), (bounds[2], low)))
+        obstacles.append(_side_wall(f'door{index}_left', (x - t, x + t), (high, bounds[3])))
+        pieces += sill_pieces(f'sill{index}', x, height, (low, high))
+    side = 1.0 if rng.uniform() < 0.5 else -1.0
+    obstacles.append(_terrain_box(rng, 'box_middle', pieces, (2.55, side * 0.55), (0.15, 0.1)))
+    return World('sills', seed, tuple(obstacles), ROBOT_AT_ORIGIN, bounds, ground=tuple(pieces))
+
+
 WORLDS: dict[str, Callable[[int], World]] = {
     'room': room_world,
     'bookshelf': bookshelf_world,
@@ -633,12 +966,16 @@ WORLDS: dict[str, Callable[[int], World]] = {
     'ledge': ledge_world,
     'stairs': stairs_world,
     'hole': hole_world,
+    'ramp-12': ramp12_world,
+    'ramp-8': ramp8_world,
+    'ramp-ledge': ramp_ledge_world,
+    'sills': sills_world,
 }
+TERRAIN_WORLDS = ('ramp-12', 'ramp-8', 'ramp-ledge', 'sills')
 
 
 def make_world(name: str, seed: int = 0) -> World:
-    """The world called `name` (room, bookshelf, barricade, clutter, ledge, stairs, hole)
-    generated with `seed`."""
+    """The world called `name` (one of `WORLDS`) generated with `seed`."""
     builder = WORLDS.get(name)
     if builder is None:
         msg = f'unknown world {name!r}; choose one of {", ".join(WORLDS)}'
