@@ -482,9 +482,10 @@ class StreamFeed:
         self.log.contacts.extend(contacts)
 
     def on_imu(self, sample: ImuSample) -> None:
-        """The IMU's samples: kept (`DriveLog.imu`); the stream takes no IMU on this branch yet
-        (issue 25's `imu_topic` is being built in the stream)."""
+        """The IMU's samples: kept (`DriveLog.imu`) and given to every stream."""
         self.log.imu.append(sample)
+        for stream in self.streams:
+            stream.add_imu(sample)
 
     def finish(self) -> None:
         for stream in self.streams:

@@ -11,8 +11,9 @@
   nearest point per slot (before the noise-robust statistic), over the camera's full
   range and capped at 3 m.
 
-- `obstacle-no-ground`: `obstacle` with `ground_estimate: false`: heights above the
-  mounting's plane, as before issue 25 (the floor is not found in each frame).
+- `obstacle-no-ground`: `obstacle` with `ground_estimate: false` and no IMU: heights above
+  the mounting's plane, as before issue 25 (the floor is not found in each frame, the
+  body's tilt not followed). The other fused methods take the simulated IMU.
 
 - `obstacle` is the shipped default, obstacle memory on; `obstacle-no-memory` the
   instantaneous fused scan; `obstacle-uncompensated`: that one with motion_compensation
@@ -48,7 +49,13 @@ if TYPE_CHECKING:
     from scanfuse.camera import CameraModel
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
-    from scanfuse.sim.simulation import CloudFrame, DepthFrame, LidarFrame, StateSample
+    from scanfuse.sim.simulation import (
+        CloudFrame,
+        DepthFrame,
+        ImuSample,
+        LidarFrame,
+        StateSample,
+    )
     from scanfuse.stream import StreamCounts, StreamOutput
 
 # Where the low row looks: this share of the way from the centre row to the bottom.
@@ -70,6 +77,7 @@ class MethodSpec:
     description: str
     changes: tuple[tuple[str, object], ...] = ()
     fuses: bool = True
+    imu: bool = True  # given the simulated IMU (as `scanfuse bag` takes a bag's one Imu topic)
 
     def config(self, base: FusionConfig, camera: CameraModel) -> FusionConfig:
         """The full configuration of this method for a robot described by `base`."""
@@ -125,12 +133,13 @@ METHODS: dict[str, MethodSpec] = {
         ),
         MethodSpec(
             'obstacle-no-ground',
-            "obstacle with ground_estimate false: heights above the mounting's plane",
+            "obstacle with ground_estimate false, no IMU: heights above the mounting's plane",
             (
                 ('method', Method.OBSTACLE),
                 ('range_max', OBSTACLE_RANGE_MAX),
                 ('ground_estimate', False),
             ),
+            imu=False,
         ),
         MethodSpec(
             'obstacle-no-memory',
@@ -224,6 +233,12 @@ class MethodStream:
         odometry = sample.odometry
         self.stream.add_odometry(sample.stamp_ns, PlanarPose(odometry.x, odometry.y, odometry.yaw))
         return self._out(self.stream.tick(sample.stamp_ns))
+
+    def add_imu(self, sample: ImuSample) -> None:
+        """The simulated IMU (frame base_link), as `scanfuse bag` takes a recording's one Imu
+        topic: the base's tilt at each depth frame."""
+        if self.stream is not None and self.spec.imu:
+            self.stream.add_imu(sample.stamp_ns, sample.orientation, 'base_link')
 
     def add_depth(self, frame: DepthFrame, frame_id: str) -> list[tuple[LidarFrame, Scan]]:
         if self.stream is None:
