@@ -277,8 +277,11 @@ def test_a_ramp_within_max_slope_is_floor_and_the_box_on_it_an_obstacle(rise):
 
 
 @pytest.mark.parametrize('rise', RAMPS.values(), ids=RAMPS.keys())
-def test_the_ramp_is_a_wall_or_a_drop_with_one_plane(rise):
-    scan, _ = depth_scans([ramp_depth(rise)], max_slope=0.0)
+@pytest.mark.parametrize(
+    'changes', [{'max_slope': 0.0}, {'ground_estimate': False}], ids=['one plane', 'mounting']
+)
+def test_the_ramp_is_a_wall_or_a_drop_with_one_plane(rise, changes):
+    scan, _ = depth_scans([ramp_depth(rise)], **changes)
     false, _ = ramp_score(scan)
     assert false > 0.1
 
