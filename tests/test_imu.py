@@ -17,17 +17,16 @@ from scanfuse.errors import InputError
 from scanfuse.imu import base_tilt
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import Transform
-from tests.convert.test_ground import (
+from tests.support.ground_scene import (
     BOX,
     CAMERA,
     NS,
-    box_depth,
     config,
     lidar_scan,
-    millimetres,
     optical_pose,
     score,
 )
+from tests.support.render import box_depth, millimetres
 
 if TYPE_CHECKING:
     import numpy as np

@@ -31,17 +31,16 @@ from scanfuse.ros.messages import (
 )
 from scanfuse.scan import Scan
 from scanfuse.transforms import Transform
-from tests.convert.test_ground import (
+from tests.support.ground_scene import (
     BOX,
     CAMERA,
     NS,
-    box_depth,
     config,
     lidar_scan,
-    millimetres,
     optical_pose,
     score,
 )
+from tests.support.render import box_depth, millimetres
 from tests.support.synthetic import write_bag
 
 if TYPE_CHECKING:

@@ -21,19 +21,18 @@ from scanfuse.ros.messages import (
     scan_to_cdr,
 )
 from scanfuse.transforms import Transform
-from tests.convert.test_ground import (
+from tests.support.ground_scene import (
     BOX,
     CAMERA,
     HEIGHT,
     NS,
     PITCH,
-    box_depth,
     config,
     lidar_scan,
-    millimetres,
     optical_pose,
     score,
 )
+from tests.support.render import box_depth, millimetres
 
 
 def run(live: LiveFusion, depth, frames: int, *, imu=None) -> list:

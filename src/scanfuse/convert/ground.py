@@ -214,6 +214,15 @@ _REASONS = {
 }
 
 
+def _kernel_depth(depth: npt.NDArray[np.generic]) -> tuple[npt.NDArray[np.generic], float]:
+    """The flat image as the kernels read it (uint16 millimetres, else float32 metres) and
+    metres per unit."""
+    flat = depth.ravel()
+    if flat.dtype == np.uint16:
+        return flat, MILLIMETRE
+    return flat.astype(np.float32, copy=False), 1.0
+
+
 def fit_ground(
     depth: npt.NDArray[np.generic],
     sample: GroundSample,
@@ -222,10 +231,7 @@ def fit_ground(
     settings: GroundSettings,
 ) -> tuple[GroundPlane | None, str]:
     """The floor plane of one depth image, or None and why (see the module docstring)."""
-    flat = depth.ravel()
-    if flat.dtype != np.uint16:
-        flat = flat.astype(np.float32, copy=False)
-    scale = MILLIMETRE if flat.dtype == np.uint16 else 1.0
+    flat, scale = _kernel_depth(depth)
     out = np.empty(7)
     ground_kernel.fit(
         flat, scale, sample.indices, sample.rays, np.array([*prior.normal, prior.offset]),
@@ -327,10 +333,7 @@ def ground_profile(
     (by more than `PROFILE_DEADBAND` in `PROFILE_EVIDENCE` bins in a row, in any column)."""
     if settings.max_slope <= 0.0:
         return None
-    flat = depth.ravel()
-    if flat.dtype != np.uint16:
-        flat = flat.astype(np.float32, copy=False)
-    scale = MILLIMETRE if flat.dtype == np.uint16 else 1.0
+    flat, scale = _kernel_depth(depth)
     columns, rows = _profile_grid(camera.width, camera.height)
     bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
     heights = np.empty((columns.size, bins))
