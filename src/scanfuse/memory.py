@@ -560,6 +560,7 @@ def slab_points(
     range_min: float,
     range_max: float,
     agreement: float = 0.0,
+    lifts: F64 | None = None,
 ) -> tuple[F64, F64]:
     """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
 
@@ -569,6 +570,8 @@ def slab_points(
     cluster of each (the faces behind it, a box's far edge seen over its top, are here too).
     With `agreement` > 0, only pixels whose left and right neighbours' depths lie within
     that share of their own (a pixel of the image's first or last column has no two).
+    `lifts` (2 x pixels: `GroundProfile.ground_under` at the slab's top and bottom) raise the
+    slab's top and bottom per pixel by the ground under them (a ramp), as the obstacle scan's.
     """
     if not (math.isfinite(agreement) and agreement >= 0.0):
         msg = f'slab_points agreement must be a share >= 0, got {agreement}'
@@ -579,6 +582,7 @@ def slab_points(
     x_n, y_n = camera.normalized_coordinates
     out_x = np.empty(image.size)
     out_y = np.empty(image.size)
+    shape = (2, *image.shape)
     found = _SLAB(
         pixels,
         1.0 if metres else 1e-3,
@@ -588,6 +592,7 @@ def slab_points(
         np.asarray(odom_to_optical.translation, dtype=np.float64),
         slab[0],
         slab[1],
+        np.zeros((2, 0, 0)) if lifts is None else np.asarray(lifts[:2]).reshape(shape),
         range_min,
         range_max,
         agreement,
@@ -606,14 +611,17 @@ def _slab_loop(
     origin: Any,
     low: float,
     high: float,
+    lifts: Any,
     range_min: float,
     range_max: float,
     agreement: float,
     out_x: Any,
     out_y: Any,
 ) -> int:
-    """`slab_points` one pixel at a time: how many points it wrote to out_x, out_y."""
+    """`slab_points` one pixel at a time: how many points it wrote to out_x, out_y.
+    `lifts` (2 x rows x columns: the slab's top and bottom raised per pixel; 0 rows: none)."""
     rows, columns = depth.shape
+    lifted = lifts.shape[1] >= rows and lifts.shape[2] >= columns
     found = 0
     for v in range(rows):
         for u in range(columns):
@@ -623,7 +631,8 @@ def _slab_loop(
             ox = x_n[v, u] * z
             oy = y_n[v, u] * z
             height = rotation[2, 0] * ox + rotation[2, 1] * oy + rotation[2, 2] * z + origin[2]
-            if not low <= height <= high:
+            top, bottom = (high + lifts[0, v, u], low + lifts[1, v, u]) if lifted else (high, low)
+            if not bottom <= height <= top:
                 continue
             if agreement > 0.0:
                 if u == 0 or u == columns - 1:

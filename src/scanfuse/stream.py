@@ -921,17 +921,24 @@ class FusionStream(Generic[T]):
         corners, not only the face nearest the LiDAR, so that what clearing forgets of a
         place is replaced by all the camera sees there."""
         config = self.config
+        own = self.pipeline.config
+        profile = None if self.ground is None else self.ground.profile
         x, y = slab_points(
             frame.depth,
             frame.camera,
             odom_to_optical,
-            slab=(
-                self.pipeline.config.min_obstacle_height,
-                self.pipeline.config.max_obstacle_height,
-            ),
+            slab=(own.min_obstacle_height, own.max_obstacle_height),
             range_min=config.range_min,
             range_max=config.range_max,
             agreement=MEMORY_NEIGHBOUR_AGREEMENT,
+            # The ramps of this frame's ground, as its obstacle scan measured (the same lifts).
+            lifts=None
+            if profile is None
+            else profile.ground_under(
+                frame.camera,
+                own.range_max,
+                (own.max_obstacle_height, own.min_obstacle_height, 0.0),
+            ),
         )
         keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)
         memory.add_dense(

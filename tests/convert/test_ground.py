@@ -273,3 +273,24 @@ def test_the_compiled_height_tables_are_the_numpy_ones(ramp):
     for dtype, extremes in compiled._extremes().items():
         for ours, theirs in zip(compiled._block_extremes[dtype], extremes, strict=True):
             np.testing.assert_array_equal(ours, theirs)
+
+
+@pytest.mark.parametrize('rise', [1.0 / 12.0, -1.0 / 8.0], ids=['1:12 up', '1:8 down'])
+def test_the_memory_remembers_no_ramp(rise):
+    from scanfuse.motion import PlanarPose
+
+    def remembered(**changes: object) -> int:
+        stream: FusionStream[int] = FusionStream(config(memory=True, **changes))
+        stream.add_camera_info(CAMERA)
+        depth = millimetres(slope_depth(CAMERA, optical_pose(), start=1.2, rise=rise))
+        for index in range(1, 4):
+            stamp = index * NS // 10
+            for odometry_ns in range(stamp - NS // 20, stamp + NS // 20, NS // 50):
+                stream.add_odometry(odometry_ns, PlanarPose(0.0, 0.0, 0.0))
+            stream.add_depth(stamp, depth, stamp)
+            stream.add_scan(lidar_scan(stamp), index, stamp + 1)
+        assert stream.memory is not None
+        return len(stream.memory)
+
+    assert remembered() == 0
+    assert remembered(max_slope=0.0) > 0  # the ramp, as one plane's obstacle

@@ -277,6 +277,10 @@ class GroundProfile:
     columns: npt.NDArray[np.int64]
     heights: F64  # columns x bins, metres above the plane
     bin_size: float
+    # `ground_under`'s answers: the projector and the memory ask the same of one frame.
+    _lifts: dict[tuple[CameraModel, float, tuple[float, ...]], F64] = field(
+        default_factory=dict, repr=False
+    )
 
     def axes(self) -> tuple[F64, F64]:
         return _plane_axes(self.plane)
@@ -284,7 +288,10 @@ class GroundProfile:
     def ground_under(self, camera: CameraModel, far: float, levels: tuple[float, ...]) -> F64:
         """Per level L and pixel (flattened) the ground's height above the plane under the
         point of the pixel's line of sight that is L above the ground (L = 0: where it meets
-        the ground), or under its point at depth `far` (levels x pixels)."""
+        the ground), or under its point at depth `far` (levels x pixels; kept, not a copy)."""
+        key = (camera, far, levels)
+        if key in self._lifts:
+            return self._lifts[key]
         x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
         forward, left = self.axes()
         lifts = np.empty((len(levels), x_n.size))
@@ -293,6 +300,8 @@ class GroundProfile:
             forward, left, self.columns, self.heights, self.bin_size, far,
             np.array(levels, dtype=np.float64), lifts,
         )  # fmt: skip
+        lifts.setflags(write=False)
+        self._lifts[key] = lifts
         return lifts
 
 

@@ -78,11 +78,16 @@ class SeenSurfaces:
 
     def add(self, depth: npt.NDArray[np.generic], camera: CameraModel, pose: Transform) -> None:
         """One depth image; `pose` is its optical frame in the world (z = 0 the floor)."""
-        limits = {'range_min': self.range_min, 'range_max': self.range_max}
-        self._mark(slab_points(depth, camera, pose, slab=self.slab, **limits), self._on_obstacle)
-        if self._on_drop is not None:
-            band = (-FLOOR_BAND, FLOOR_BAND)
-            self._mark(slab_points(depth, camera, pose, slab=band, **limits), self._on_drop)
+        for slab, surface in (
+            (self.slab, self._on_obstacle),
+            ((-FLOOR_BAND, FLOOR_BAND), self._on_drop),
+        ):
+            if surface is not None:
+                points = slab_points(
+                    depth, camera, pose, slab=slab, range_min=self.range_min,
+                    range_max=self.range_max,
+                )  # fmt: skip
+                self._mark(points, surface)
 
     def _mark(
         self,
