@@ -286,9 +286,10 @@ TERRAIN_NOTE = (
     'heights above the ground each obstacle stands on: a ramp is floor, a box on it an '
     'obstacle. On slopes: scans taken with the LiDAR on a ramp or within 1.5 m of one. False '
     'drops as on the other worlds (a twin stream with `detect_drops: false`), on the terrain '
-    'worlds without drop-offs. The IMU is recorded but not fused on this branch (the stream '
-    'takes no IMU yet). Targets (issue 25): `obstacle` 0 collisions, 0 falls, every ramp trial '
-    'reaches its goal; false obstacles on slopes <= 0.5 %.'
+    'worlds without drop-offs. Every fused method takes the IMU (its tilt at each depth '
+    'frame) but `obstacle-no-ground`, which also has `ground_estimate: false`: heights above '
+    "the mounting's plane, as before issue 25. Targets (issue 25): `obstacle` 0 collisions, "
+    '0 falls, every ramp trial reaches its goal; false obstacles on slopes <= 0.5 %.'
 )
 TERRAIN_HEADERS = [
     'method',
