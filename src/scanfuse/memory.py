@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from scanfuse.camera import CameraModel
+    from scanfuse.convert.ground import GroundProfile
     from scanfuse.motion import PlanarPose
     from scanfuse.scan import AngleGrid, Scan
     from scanfuse.transforms import Transform
@@ -440,11 +441,13 @@ class ObstacleMemory:
         slab: tuple[float, float],
         range_min: float,
         range_max: float,
+        profile: GroundProfile | None = None,
     ) -> int:
         """Forget the points the camera sees free in `depth`; how many were forgotten.
 
         `odom_to_optical` is the camera's optical frame in the odometry frame at the
-        image's stamp; heights are above the odometry frame's z = 0 (the floor).
+        image's stamp; heights are above the odometry frame's z = 0 (the floor), and above
+        the ground of `profile` (this frame's ramps) where there is one.
         """
         low, high = slab
         heights = np.array([low + (high - low) * f for f in CLEAR_HEIGHTS])
@@ -472,9 +475,51 @@ class ObstacleMemory:
             range_min,
             range_max,
             np.asarray(CLEAR_MARGIN),
+            *_profile_arrays(profile),
         )
         self.cleared += cleared
         return int(cleared)
+
+
+def _profile_arrays(profile: GroundProfile | None) -> tuple[Any, ...]:
+    """A profile's columns, heights, bin size and horizontal axes as `_clear_loop` takes
+    them (no columns: no profile)."""
+    if profile is None:
+        return np.zeros(0, np.int64), np.zeros((0, 1)), 1.0, np.zeros(3), np.zeros(3)
+    forward, left = profile.axes()
+    return profile.columns, profile.heights, profile.bin_size, forward, left
+
+
+def _ground_under(
+    gx: float,
+    gy: float,
+    gz: float,
+    fx: float,
+    cx: float,
+    columns: Any,
+    profile: Any,
+    bin_size: float,
+    forward: Any,
+    left: Any,
+) -> float:
+    """The profile's ground height under the floor point (gx, gy, gz) of the optical frame:
+    its image column's profile, linear between bin centres (0 without a profile)."""
+    if columns.size == 0 or not gz > 0.0:
+        return 0.0
+    step = columns[1] - columns[0] if columns.size > 1 else 1
+    u = fx * gx / gz + cx
+    c = min(max(round((u - columns[0]) / step), 0), min(columns.size, profile.shape[0]) - 1)
+    along = forward[0] * gx + forward[1] * gy + forward[2] * gz
+    across = left[0] * gx + left[1] * gy + left[2] * gz
+    position = math.sqrt(along * along + across * across) / bin_size - 0.5
+    bins = profile.shape[1]
+    if not position > 0.0:
+        return float(profile[c, 0])
+    if not position < bins - 1:
+        return float(profile[c, bins - 1])
+    b = int(position)
+    share = position - b
+    return float(profile[c, b] + share * (profile[c, b + 1] - profile[c, b]))
 
 
 def _clear_loop(
@@ -494,6 +539,11 @@ def _clear_loop(
     range_min: float,
     range_max: float,
     margin: Any,
+    profile_columns: Any,
+    profile: Any,
+    bin_size: float,
+    forward: Any,
+    left: Any,
 ) -> int:
     """`ObstacleMemory.clear_seen` one point at a time; the count of points forgotten.
 
@@ -508,10 +558,17 @@ def _clear_loop(
         if keys[i] < 0:
             continue
         looked_at = True
+        wx = xs[i] - origin[0]
+        wy = ys[i] - origin[1]
+        # The ground under the point: the floor's, raised by a ramp's (`profile`).
+        lift = ground_under(
+            rotation[0, 0] * wx + rotation[1, 0] * wy - rotation[2, 0] * origin[2],
+            rotation[0, 1] * wx + rotation[1, 1] * wy - rotation[2, 1] * origin[2],
+            rotation[0, 2] * wx + rotation[1, 2] * wy - rotation[2, 2] * origin[2],
+            fx, cx, profile_columns, profile, bin_size, forward, left,
+        )  # fmt: skip
         for rank in range(heights.size):
-            wx = xs[i] - origin[0]
-            wy = ys[i] - origin[1]
-            wz = heights[rank] - origin[2]
+            wz = heights[rank] + lift - origin[2]
             # optical = R^T (world - origin)
             ox = rotation[0, 0] * wx + rotation[1, 0] * wy + rotation[2, 0] * wz
             oy = rotation[0, 1] * wx + rotation[1, 1] * wy + rotation[2, 1] * wz
@@ -548,6 +605,7 @@ def _clear_loop(
     return cleared
 
 
+ground_under = compiled(_ground_under)
 _CLEAR = compiled(_clear_loop)
 
 

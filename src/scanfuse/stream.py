@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 import numpy as np
 
 from scanfuse.config import Method
-from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
+from scanfuse.convert.ground import GroundPlane, GroundProfile, GroundSettings, GroundTracker
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.extras import ExtraSources, primary_camera_config
 from scanfuse.fragments import FragmentAssembler
@@ -820,6 +820,7 @@ class FusionStream(Generic[T]):
                 frame.camera,
                 extrinsics.base_to_camera_optical,
                 slab,
+                None if self.ground is None else self.ground.profile,
             )
             if seen_from is not None:
                 self._cleared_with = frame.stamp_ns
@@ -884,9 +885,10 @@ class FusionStream(Generic[T]):
         camera: CameraModel,
         base_to_optical: Transform,
         slab: tuple[float, float],
+        profile: GroundProfile | None = None,
     ) -> Transform | None:
-        """Forget what one depth frame sees free; the camera's optical frame in odom (None:
-        odometry cannot place the frame yet)."""
+        """Forget what one depth frame sees free (above the ramps of `profile`, its ground);
+        the camera's optical frame in odom (None: odometry cannot place the frame yet)."""
         camera_base = self.odometry.pose_at(stamp_ns)
         if camera_base.pose is None or camera_base.segment != self._memory_segment:
             return None
@@ -903,6 +905,7 @@ class FusionStream(Generic[T]):
             slab=slab,
             range_min=config.range_min,
             range_max=config.range_max,
+            profile=profile,
         )
         return odom_to_optical
 

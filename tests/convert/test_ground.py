@@ -294,3 +294,29 @@ def test_the_memory_remembers_no_ramp(rise):
 
     assert remembered() == 0
     assert remembered(max_slope=0.0) > 0  # the ramp, as one plane's obstacle
+
+
+def test_the_camera_clears_a_remembered_box_from_a_ramp_it_no_longer_stands_on():
+    from scanfuse.motion import PlanarPose
+
+    # The ramp stands 8.75 cm high under the box (within memory_radius, 2 m). (The clearing's
+    # margins, 20 cm of depth there, would let a flat floor's clearing see past it too: this
+    # shows the remembered box goes, not which ground cleared it.)
+    rise, front = 1.0 / 8.0, 1.9
+    under = rise * (front - 1.2)
+    box = (front, front + 0.3, -0.3, 0.3, under - 0.05, under + BOX_HEIGHT)
+    with_box = millimetres(slope_depth(CAMERA, optical_pose(), start=1.2, rise=rise, boxes=[box]))
+    without = millimetres(slope_depth(CAMERA, optical_pose(), start=1.2, rise=rise))
+    stream: FusionStream[int] = FusionStream(config(memory=True))
+    stream.add_camera_info(CAMERA)
+    counts = []
+    for index, depth in enumerate([with_box] * 3 + [without] * 3, start=1):
+        stamp = index * NS // 10
+        for odometry_ns in range(stamp - NS // 20, stamp + NS // 20, NS // 50):
+            stream.add_odometry(odometry_ns, PlanarPose(0.0, 0.0, 0.0))
+        stream.add_depth(stamp, depth, stamp)
+        stream.add_scan(lidar_scan(stamp), index, stamp + 1)
+        assert stream.memory is not None
+        counts.append(len(stream.memory))
+    assert counts[2] > 0  # the box, remembered
+    assert counts[-1] == 0  # seen gone: the ramp under it is floor
