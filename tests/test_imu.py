@@ -134,3 +134,22 @@ def test_an_imu_that_stopped_is_not_used_and_the_ground_estimate_still_finds_the
     off, stream = fused_with_imu(depth, stale, imu_until_ns=20_000_000, ground_estimate=False)
     assert stream.counts.imu_missed == 1
     assert score(off)[0] > 0.1  # untilted, as mounted: the floor (no stale 5 deg applied)
+
+
+def test_the_tilt_at_a_frame_is_the_mean_of_the_samples_around_it():
+    from scanfuse.imu import ImuHistory
+
+    history = ImuHistory()
+    # 2 deg of pitch with +-0.3 deg of noise, alternating, at 200 Hz around 1 s.
+    for index in range(-10, 11):
+        noise = 0.3 if index % 2 else -0.3
+        history.add(
+            NS + index * IMU_PERIOD_NS, base_tilt(body_quaternion(0.0, 2.0 + noise), Transform())
+        )
+    tilt = history.tilt_at(NS)
+    assert tilt is not None
+    roll, pitch, _ = tilt.rpy()
+    # 9 samples within 20 ms: four +0.3, five -0.3 -> 2 - 0.3 / 9 deg
+    assert math.degrees(pitch) == pytest.approx(2.0 - 0.3 / 9.0, abs=1e-6)
+    assert roll == pytest.approx(0.0, abs=1e-9)
+    assert history.tilt_at(NS + 200_000_000) is None  # 150 ms past the last sample

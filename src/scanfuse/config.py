@@ -227,7 +227,7 @@ class FusionConfig(BaseModel):
         ),
     )
     ground_smoothing: float = Field(
-        0.5,
+        0.3,
         gt=0.0,
         le=1.0,
         allow_inf_nan=False,

@@ -29,6 +29,8 @@ QUATERNION_NORM_TOLERANCE = 0.05
 MAX_SAMPLES = 400
 # The most an IMU sample may lie from a depth frame's stamp and still tell its tilt.
 MAX_AGE_NS = 50_000_000
+# Samples this near a depth frame's stamp are averaged (at 100-200 Hz, 5-9 of them).
+AVERAGE_NS = 20_000_000
 # Tilts beyond this are no floor a robot drives on: the orientation is refused.
 MAX_TILT = math.radians(45.0)
 
@@ -79,8 +81,9 @@ class ImuHistory:
         self._samples.append(ImuSample(stamp_ns, tilt))
 
     def tilt_at(self, stamp_ns: int) -> Transform | None:
-        """The tilt of the sample nearest `stamp_ns`, None when none is within MAX_AGE_NS
-        (no IMU, or it stopped)."""
+        """The mean roll and pitch of the samples within AVERAGE_NS of `stamp_ns` (an IMU's
+        noise, not the body's rocking, changes within it), else of the nearest one; None when
+        none is within MAX_AGE_NS (no IMU, or it stopped)."""
         if not self._samples:
             return None
         stamps = [sample.stamp_ns for sample in self._samples]
@@ -91,4 +94,11 @@ class ImuHistory:
         )
         if abs(stamps[nearest] - stamp_ns) > MAX_AGE_NS:
             return None
-        return self._samples[nearest].tilt
+        first = bisect.bisect_left(stamps, stamp_ns - AVERAGE_NS)
+        last = bisect.bisect_right(stamps, stamp_ns + AVERAGE_NS)
+        near = [self._samples[i].tilt.rpy() for i in range(first, last)] or [
+            self._samples[nearest].tilt.rpy()
+        ]
+        roll = sum(angles[0] for angles in near) / len(near)
+        pitch = sum(angles[1] for angles in near) / len(near)
+        return Transform.from_rpy(roll, pitch, 0.0)

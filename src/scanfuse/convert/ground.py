@@ -132,7 +132,7 @@ class GroundSettings:
     depth_noise: float = 0.01  # sigma = depth_noise * Z^2 (1/m)
     min_points: int = 80  # inliers needed for an estimate
     min_spread: float = 0.1  # metres: standard deviation of the inliers along each plane axis
-    smoothing: float = 0.5  # weight of the new frame's plane
+    smoothing: float = 0.3  # weight of the new frame's plane
     samples: int = 1500  # pixels looked at per frame
     hypotheses: int = 40  # random triples tried per frame
     max_slope: float = math.atan(1.0 / 8.0)  # radians: steeper ground is not floor; 0: one plane
