@@ -8,23 +8,30 @@ the camera's optical frame, with the mounting's plane as the prior:
 - a fixed sample of pixels (`GroundSample`, about `samples` of them, on a regular grid of
   the pixels that look below the horizon) is back-projected; only points that an
   admissible plane could hold are candidates: within `max_offset` + r sin(`max_tilt`) of
-  the prior's plane, r their distance from the camera, and at most `reach` metres away
-  (the floor near the robot, not the far end of a ramp);
+  the prior's plane, r their distance from the camera, at most `reach` metres away, and
+  within `ground_kernel.FIT_DEPTH` of where the floor is first seen (the floor the robot
+  stands on, not a ramp farther ahead: that is the profile's);
 - RANSAC over those candidates (hypotheses: the prior, the last estimate and random
   triples; seeded, so a frame gives the same plane every time) keeps the admissible plane
   (normal within `max_tilt` of the prior's, offset within `max_offset`) with the best score:
   points within the inlier distance (`inlier_distance` + 3 sigma of the depth noise) minus
   points more than that below it. The floor is the lowest large surface the robot stands
   on: a box top or a step is a plane with the floor under it, and loses;
-- least squares on the winner's inliers, twice, checked against the bounds again;
+- least squares on the winner's inliers (`ground_kernel.refine`: within the inlier distance
+  below the plane, only the depth's noise above it), three times, checked against the
+  bounds again;
 - too few inliers (fewer than `min_points`) or inliers along a line (their spread across
   either in-plane axis below `min_spread`: a strip of floor under a wall fixes only one
   tilt) keep the last estimate: the frame falls back, counted;
-- the estimate is smoothed over frames (`smoothing`: the weight of the new frame).
+- the estimate's offset from the prior is smoothed over frames (`smoothing`: the weight of
+  the new frame), so a prior that moves (an IMU's tilt) carries the learnt error along;
+- ground that leaves the plane ahead within `max_slope` (a ramp) is the profile's
+  (`ground_profile`, `ground_kernel.profile`): per image column, walked outwards.
 
-The heights of the collision slab and of drops are then measured above this plane
-(`ObstacleProjector.scan(ground=...)`). On a flat floor with the right mounting the
-estimate equals the prior within the depth's rounding, and the projector keeps its tables.
+The heights of the collision slab and of drops are then measured above this ground
+(`ObstacleProjector.scan(ground=..., profile=...)`); `MountCheck` compares it with the
+mounting over many frames. On a flat floor with the right mounting the estimate stays
+within the projector's GROUND_TOLERANCE of the prior, and the projector keeps its tables.
 """
 
 from __future__ import annotations
