@@ -320,3 +320,19 @@ def test_the_camera_clears_a_remembered_box_from_a_ramp_it_no_longer_stands_on()
         counts.append(len(stream.memory))
     assert counts[2] > 0  # the box, remembered
     assert counts[-1] == 0  # seen gone: the ramp under it is floor
+
+
+@pytest.mark.parametrize('pitch', [2.0, -2.0], ids=['nose-down', 'nose-up'])
+def test_a_sudden_pitch_shows_no_floor_from_its_first_frame(pitch):
+    # The smoothed plane lags the body by (1 - ground_smoothing) of the change; what is left
+    # is a tilt of the floor ahead, well within max_slope: the profile takes it.
+    level = millimetres(box_depth(CAMERA, optical_pose(), [BOX]))
+    pitched = millimetres(box_depth(CAMERA, optical_pose(body_pitch=pitch), [BOX]))
+    stream: FusionStream[int] = FusionStream(config())
+    stream.add_camera_info(CAMERA)
+    for index, depth in enumerate([level] * 3 + [pitched] * 3, start=1):
+        stamp = index * NS // 10
+        stream.add_depth(stamp, depth, stamp)
+        (out,) = stream.add_scan(lidar_scan(stamp), index, stamp + 1)
+        assert out.depth_scan is not None
+        assert score(out.depth_scan) == (0.0, 1.0), index
