@@ -269,6 +269,9 @@ PROFILE_BIN = 0.15
 # foot make no profile, and the tables stay).
 PROFILE_DEADBAND = 0.02
 PROFILE_EVIDENCE = 3
+# The ground under the lines of sight (`GroundProfile.ground_under`) is found for every
+# LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row, each standing for its block.
+LIFT_STRIDE = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -299,14 +302,24 @@ class GroundProfile:
         key = (camera, far, levels)
         if key in self._lifts:
             return self._lifts[key]
-        x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
+        # On every LIFT_STRIDE-th pixel and row, then each to its block: the ground under a
+        # line of sight moves by millimetres from one pixel to the next.
+        x_n, y_n = (
+            np.ascontiguousarray(np.asarray(c)[::LIFT_STRIDE, ::LIFT_STRIDE])
+            for c in camera.normalized_coordinates
+        )
         forward, left = self.axes()
-        lifts = np.empty((len(levels), x_n.size))
+        coarse = np.empty((len(levels), x_n.size))
         ground_kernel.crossings(
-            x_n, y_n, camera.width, np.array([*self.plane.normal, self.plane.offset]),
-            forward, left, self.columns, self.heights, self.bin_size, far,
-            np.array(levels, dtype=np.float64), lifts,
+            x_n.ravel(), y_n.ravel(), x_n.shape[1], LIFT_STRIDE,
+            np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
+            self.heights, self.bin_size, far, np.array(levels, dtype=np.float64), coarse,
         )  # fmt: skip
+        fine = coarse.reshape(len(levels), *x_n.shape)
+        fine = np.repeat(np.repeat(fine, LIFT_STRIDE, axis=1), LIFT_STRIDE, axis=2)
+        lifts = np.ascontiguousarray(fine[:, : camera.height, : camera.width]).reshape(
+            len(levels), -1
+        )
         lifts.setflags(write=False)
         self._lifts[key] = lifts
         return lifts

@@ -377,6 +377,7 @@ def _crossings(
     x_n: Any,
     y_n: Any,
     width: int,
+    stride: int,
     plane: Any,
     forward: Any,
     left: Any,
@@ -387,9 +388,10 @@ def _crossings(
     levels: Any,
     lifts: Any,
 ) -> None:
-    """Per level L and pixel the ground's height g above the plane at the point where the
-    pixel's line of sight is L above the ground of its column's profile (the nearest sampled
-    column; linear between bin centres, level beyond the ends): lifts[level, pixel].
+    """Per level L and ray the ground's height g above the plane at the point where the
+    ray is L above the ground of its column's profile (the nearest sampled column; linear
+    between bin centres, level beyond the ends): lifts[level, ray]. The rays are those of
+    every `stride`-th pixel of every `stride`-th row (`width` of them a row).
 
     The line of sight's height above the ground falls along it (it looks down more steeply
     than any floor slopes), so the first knot below L brackets the point. A line of sight
@@ -399,33 +401,38 @@ def _crossings(
     last = columns.size - 1
     first_column = columns[0]
     step = columns[1] - columns[0] if columns.size > 1 else 1
+    g = 0.0
     for i in range(min(x_n.size, y_n.size, lifts.shape[1])):
-        u = i % width
+        u = (i % width) * stride  # the image column of the i-th ray of every stride-th
         c = min(max(round((u - first_column) / step), 0), last)
         down = plane[0] * x_n[i] + plane[1] * y_n[i] + plane[2]  # height per metre of depth
         along = forward[0] * x_n[i] + forward[1] * y_n[i] + forward[2]
         across = left[0] * x_n[i] + left[1] * y_n[i] + left[2]
         run = math.sqrt(along * along + across * across)  # horizontal metres per metre of depth
-        for level in range(min(levels.size, lifts.shape[0])):
-            target = levels[level]
-            value = profile[c, bins - 1]
-            previous_gap = plane[3] - profile[c, 0] - target
-            for b in range(bins + 1):
-                # Knots at bin centres, and the far end.
-                z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
-                z = min(z, far)
-                g = profile[c, min(b, bins - 1)]
-                gap = down * z + plane[3] - g - target  # above the ground, less the level
-                if gap <= 0.0:
-                    share = previous_gap / (previous_gap - gap) if previous_gap > gap else 1.0
-                    g_before = profile[c, max(min(b - 1, bins - 1), 0)]
-                    value = g_before + share * (g - g_before)
-                    break
-                if z >= far:
-                    value = g
-                    break
-                previous_gap = gap
-            lifts[level, i] = value
+        # One walk along the knots serves every level: each takes the first knot where the
+        # line of sight is no more than it above the ground (levels descend: so do they).
+        count = min(levels.size, lifts.shape[0])
+        pending = 0
+        previous_gap = plane[3] - profile[c, 0]
+        for b in range(bins + 1):
+            # Knots at bin centres, and the far end.
+            z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
+            z = min(z, far)
+            g = profile[c, min(b, bins - 1)]
+            gap = down * z + plane[3] - g  # the line of sight's height above the ground
+            g_before = profile[c, max(min(b - 1, bins - 1), 0)]
+            while pending < count and gap <= levels[pending]:
+                target = levels[pending]
+                above = previous_gap - target
+                below = gap - target
+                share = above / (above - below) if above > below else 1.0
+                lifts[pending, i] = g_before + share * (g - g_before)
+                pending += 1
+            if z >= far or pending == count:
+                break
+            previous_gap = gap
+        for level in range(pending, count):
+            lifts[level, i] = g  # the ground at the walk's last knot: depth `far`
 
 
 candidate = compiled(_candidate)
