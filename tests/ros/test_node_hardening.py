@@ -39,6 +39,13 @@ pytest.importorskip('rclpy')
 pytestmark = pytest.mark.ros
 
 
+# Scene time the node may pass scans through at start-up: until the first CameraInfo and
+# depth frame, and while it builds that camera's tables and the floor's sample (issue 25's
+# ground estimate made the first fused frame slower: on a busy 2-core machine one or two
+# more scans of a replay then pass).
+START_UP = 0.35e9
+
+
 @pytest.fixture
 def loop_factory(tmp_path):
     made = []
@@ -86,11 +93,12 @@ def test_memory_sizes_the_grid_cannot_hold_are_refused_at_run_time(tmp_path, loo
     assert 'memory_cell' in cell['reason']
     assert 'memory cells' in cell['reason']
     done = max(radius['done'], cell['done'])
-    # The first scans may pass while the node still waits for the first CameraInfo.
+    # The first scans may pass while the node still waits for the first CameraInfo, or builds
+    # the camera's tables and the floor's sample on its first frame (START_UP).
     after = [
         ahead(scan)
         for t, raw in received
-        if t > done + 0.15 and (scan := scan_from_cdr(raw)).stamp_ns >= scene.start_ns + 0.15e9
+        if t > done + 0.15 and (scan := scan_from_cdr(raw)).stamp_ns >= scene.start_ns + START_UP
     ]
     assert after, 'the replay ended before the parameters were set'
     assert all(value == pytest.approx(BOX, abs=TOLERANCE) for value in after), after
@@ -139,7 +147,7 @@ def test_soak_with_memory_odometry_and_a_second_lidar_under_a_malformed_flood(
     for scan in [*fused, *(scan_from_cdr(raw) for _, raw in received.get('/scan_memory', []))]:
         values = scan.ranges[np.isfinite(scan.ranges)]
         assert np.all((values >= scan.range_min) & (values <= scan.range_max) & (values > 0.0))
-    later = [scan for scan in fused if scan.stamp_ns >= scene.start_ns + 0.15e9]
+    later = [scan for scan in fused if scan.stamp_ns >= scene.start_ns + START_UP]
     assert len([s for s in later if ahead(s) == pytest.approx(BOX, abs=TOLERANCE)]) >= 10
     store = typestore()
     last = store.deserialize_cdr(

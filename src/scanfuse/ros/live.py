@@ -38,7 +38,9 @@ from scanfuse.stream import FusionStream, Passed, StreamOutput
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
+    from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
+    from scanfuse.pipeline import FusionPipeline
     from scanfuse.ros.messages import RawMessage
     from scanfuse.scan import AngleGrid, Scan
 
@@ -201,8 +203,43 @@ class LiveFusion:
         pipeline = FusionPipeline(self.config)
         pipeline.fuse(scan, np.full((12, 16), 1000, dtype=np.uint16), camera)
         pipeline.fuse(scan, np.full((12, 16), 1.0, dtype=np.float32), camera)
+        if self.config.ground_estimate or self.config.imu_topic:
+            self._warm_up_ground(pipeline, camera, scan)
         if self.config.sources.clouds:
             self._warm_up_clouds(scan)
+
+    def _warm_up_ground(self, pipeline: FusionPipeline, camera: CameraModel, scan: Scan) -> None:
+        """The floor's compiled parts: the fit and the profile's walk (both depth types), a
+        ramp's ground under each pixel, the height tables' rebuild, and the memory's slab and
+        clearing above a ramp; else the first frames of a ramp or a pitching body load them."""
+        from scanfuse.convert.ground import (  # noqa: PLC0415
+            GroundPlane,
+            GroundProfile,
+            GroundSettings,
+            GroundTracker,
+        )
+        from scanfuse.memory import MemorySettings, ObstacleMemory, slab_points  # noqa: PLC0415
+        from scanfuse.transforms import Extrinsics, Transform  # noqa: PLC0415
+
+        mounting = Extrinsics.from_config(self.config).base_to_camera_optical
+        prior = GroundPlane.of_mounting(mounting)
+        tracker = GroundTracker(GroundSettings())
+        for depth in (np.full((12, 16), 1000, np.uint16), np.full((12, 16), 1.0, np.float32)):
+            tracker.update(depth, camera, prior)
+        profile = GroundProfile(prior, np.arange(0, 16, 4), np.zeros((4, 20)), 0.15)
+        tilted = GroundPlane.of_mounting(Transform.from_rpy(0.0, 0.05, 0.0) @ mounting)
+        pipeline.fuse(scan, np.full((12, 16), 1000, np.uint16), camera, ground=tilted)
+        pipeline.fuse(
+            scan, np.full((12, 16), 1.0, np.float32), camera, ground=tilted, profile=profile
+        )
+        levels = (self.config.max_obstacle_height, self.config.min_obstacle_height, 0.0)
+        lifts = profile.ground_under(camera, self.config.range_max, levels)
+        memory = ObstacleMemory(MemorySettings(2.0, 1.0, 0.05))
+        for depth in (np.full((12, 16), 1000, np.uint16), np.full((12, 16), 1.0, np.float32)):
+            slab = (self.config.min_obstacle_height, self.config.max_obstacle_height)
+            limits = {'range_min': 0.1, 'range_max': 3.0}
+            slab_points(depth, camera, mounting, slab=slab, lifts=lifts, **limits)
+            memory.clear_seen(depth, camera, mounting, slab=slab, profile=profile, **limits)
 
     def _warm_up_clouds(self, scan: Scan) -> None:
         """Bin a tiny PointCloud2 of each coordinate type, decoded as a live one is."""
