@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import numpy as np
 import pytest
@@ -111,7 +112,7 @@ def test_soak_with_memory_odometry_and_a_second_lidar_under_a_malformed_flood(
     with malformed scans on both LiDARs' topics (increments of 1e-7 and 1e-9, angle_min
     -1e12, a NaN time_increment, a Hokuyo's zeros), bad odometry and the older floods, keeps
     its resident memory bounded, counts what it dropped and publishes valid scans after."""
-    scene = Scene(duration=2.0)
+    scene = Scene(duration=4.0)  # long enough to see past the start-up (START_UP)
     odometry = [
         (
             '/odom',
@@ -119,7 +120,7 @@ def test_soak_with_memory_odometry_and_a_second_lidar_under_a_malformed_flood(
             stamp,
             odometry_to_cdr(OdometrySample(stamp, 'odom', 'base_link', PlanarPose(0.0, 0.0, 0.0))),
         )
-        for stamp in range(scene.start_ns - 100_000_000, scene.start_ns + 2_100_000_000, 20_000_000)
+        for stamp in range(scene.start_ns - 100_000_000, scene.start_ns + 4_100_000_000, 20_000_000)
     ]
     messages = sorted(two_lidar_messages(scene) + odometry, key=lambda message: message[2])
     bag = write_bag(tmp_path / 'in.mcap', messages)
@@ -133,6 +134,12 @@ def test_soak_with_memory_odometry_and_a_second_lidar_under_a_malformed_flood(
     }
     loop = loop_factory(use_tf=False, pair_wait=0.1, **SCENE_PARAMS, **sources)
     loop.record('/scan_fused', '/scan_memory', '/diagnostics')
+    # The running node's memory, not a process still loading (or, with a cold numba cache,
+    # compiling) its kernels: it logs 'fusing' once warmed up and subscribed.
+    deadline = time.monotonic() + 120.0
+    while 'fusing' not in loop.log('node') and time.monotonic() < deadline:
+        assert loop.node.poll() is None, loop.log('node')
+        time.sleep(0.1)
     baseline = _rss_kib(loop.node.pid, 'VmRSS')
     flood = loop.loopback('flood', 'flood', '--seconds', '8', '--sources')
     assert flood.wait(timeout=60) == 0, loop.log('flood')
