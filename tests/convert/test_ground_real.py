@@ -19,12 +19,10 @@ import pytest
 from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.convert.floor_fit import FloorFit, fit_floor
-from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
+from tests.support.ground_scene import NS, lidar_scan
 
 CAMERA = CameraModel.from_intrinsics(640, 480, 525.0, 525.0, 320.0, 240.0, frame_id='optical')
-READINGS = 1440
-NS = 1_000_000_000
 
 
 @pytest.fixture(scope='module')
@@ -51,21 +49,11 @@ def depth_scan(frame, fit: FloorFit, *, height_error=0.0, pitch_error=0.0, **cha
     )
     stream: FusionStream[int] = FusionStream(config)
     stream.add_camera_info(CAMERA)
-    increment = 2.0 * math.pi / READINGS
     out = None
     for index in range(1, 4):
         stamp = index * NS // 10
         stream.add_depth(stamp, frame, stamp)
-        lidar = Scan(
-            angle_min=-math.pi,
-            angle_max=math.pi - increment,
-            angle_increment=increment,
-            range_min=0.05,
-            range_max=10.0,
-            ranges=np.full(READINGS, np.inf, dtype=np.float32),
-            frame_id='laser',
-            stamp_ns=stamp,
-        )
+        lidar = lidar_scan(stamp)
         (out,) = stream.add_scan(lidar, index, stamp + 1)
     assert out is not None
     assert out.depth_scan is not None
