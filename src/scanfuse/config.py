@@ -267,6 +267,39 @@ class FusionConfig(BaseModel):
             "a reading (a 270-degree LiDAR's blind sector, filled by another LiDAR or camera)"
         ),
     )
+    output_frame: str = Field(
+        '',
+        description=(
+            'frame of the output scan (any frame TF or the mountings reach: base_frame, a '
+            "LiDAR's); every source's readings are re-binned into it from their 3D points. "
+            "Empty: the first LiDAR's frame (no LiDAR: the camera's for the row method, else "
+            'base_frame)'
+        ),
+    )
+    angle_increment: float = Field(
+        0.0,
+        ge=0.0,
+        le=math.pi,
+        allow_inf_nan=False,
+        description=(
+            "output grid step, radians; 0: the first LiDAR's grid (no LiDAR: the row "
+            "method's own, depthimage_to_laserscan's; else pi/360 over angle_min..angle_max)"
+        ),
+    )
+    angle_min: float = Field(
+        -math.pi,
+        ge=-2.0 * math.pi,
+        le=2.0 * math.pi,
+        allow_inf_nan=False,
+        description='first angle of the output grid, radians (with angle_increment or no LiDAR)',
+    )
+    angle_max: float = Field(
+        math.pi,
+        ge=-2.0 * math.pi,
+        le=2.0 * math.pi,
+        allow_inf_nan=False,
+        description='last angle of the output grid, radians (with angle_increment or no LiDAR)',
+    )
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
@@ -363,8 +396,13 @@ class FusionConfig(BaseModel):
     publish_depth_scan: bool = Field(
         default=True, description='also publish the depth scan on /scan_depth'
     )
-    scan_topic: str = Field('/scan', description='LiDAR LaserScan topic')
-    depth_topic: str = Field('/camera/depth/image_raw', description='depth Image topic')
+    scan_topic: str = Field(
+        '/scan', description='LiDAR LaserScan topic; empty: no LiDAR (a camera-only robot)'
+    )
+    depth_topic: str = Field(
+        '/camera/depth/image_raw',
+        description='depth Image topic; empty: no camera (LiDARs or clouds only)',
+    )
     camera_info_topic: str = Field('/camera/depth/camera_info', description='CameraInfo topic')
     fused_topic: str = Field('/scan_fused', description='fused LaserScan topic')
     depth_scan_topic: str = Field('/scan_depth', description='depth LaserScan topic')
@@ -411,6 +449,18 @@ class FusionConfig(BaseModel):
                 f'least {_smallest_cell(self.memory_radius):.4f} m or memory_radius smaller'
             )
             raise ValueError(msg)
+        if not (self.has_lidar or self.has_camera or self.sources.clouds):
+            msg = (
+                'no source: scan_topic and depth_topic are empty and no cloud is named; '
+                'give at least one LiDAR, depth camera or cloud'
+            )
+            raise ValueError(msg)
+        if self.angle_increment > 0.0 and self.angle_max <= self.angle_min:
+            msg = (
+                f'angle_max ({self.angle_max}) must be above angle_min ({self.angle_min}) '
+                'for the output grid'
+            )
+            raise ValueError(msg)
         if self.d2l_compat and self.scan_row is not None:
             msg = (
                 'd2l_compat reproduces depthimage_to_laserscan, whose band is always centred '
@@ -418,6 +468,16 @@ class FusionConfig(BaseModel):
             )
             raise ValueError(msg)
         return self
+
+    @property
+    def has_lidar(self) -> bool:
+        """A LiDAR is configured (`scan_topic`, or the first named LiDAR, non-empty)."""
+        return bool(self.scan_topic)
+
+    @property
+    def has_camera(self) -> bool:
+        """A depth camera is configured (`depth_topic`, or the first named camera)."""
+        return bool(self.depth_topic)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> FusionConfig:
