@@ -15,6 +15,14 @@ from scanfuse.errors import ConfigError
 from scanfuse.output import grid_between
 from scanfuse.stream import FusionStream, Passed
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+from tests.support.modes import (
+    D2L_CAMERA,
+    D2L_CX,
+    D2L_CY,
+    D2L_FX,
+    camera_only_params,
+    d2l_images,
+)
 from tests.support.reference import d2l_scan_loop
 from tests.support.render import box_depth, square_room_ranges
 from tests.test_sources import HALF, NS, lidar_scan
@@ -117,49 +125,21 @@ def test_a_full_turn_grid_holds_each_direction_once():
 
 # ---------------------------------------------------------------- camera only
 
-D2L_CAMERA = CameraModel.from_intrinsics(
-    640, 480, 570.3422241210938, 570.3422241210938, 314.5, 235.5, frame_id='camera_depth_frame'
-)
-
 
 def camera_only(**changes) -> FusionConfig:
-    """depthimage_to_laserscan's fixture parameters: range 0.45-10 m, one row."""
-    values = {
-        'scan_topic': '',
-        'method': 'row',
-        'd2l_compat': True,
-        'range_min': 0.45,
-        'range_max': 10.0,
-        'memory': False,
-        'use_tf': False,
-        **changes,
-    }
-    return FusionConfig.from_dict(values)
+    return FusionConfig.from_dict({**camera_only_params(), **changes})
 
 
-def d2l_cases() -> dict[str, np.ndarray]:
-    """The upstream test's images: every pixel 3.855 m (its fixture), random 0-0.5 m, NaN,
-    +Inf, -Inf."""
-    rng = np.random.default_rng(8675309)
-    return {
-        'fixture': np.full((480, 640), 0x0F0F, dtype=np.uint16),
-        'random': rng.integers(0, 500, size=(480, 640), endpoint=True).astype(np.uint16),
-        'nan': np.full((480, 640), np.nan, dtype=np.float32),
-        'inf': np.full((480, 640), np.inf, dtype=np.float32),
-        'minus_inf': np.full((480, 640), -np.inf, dtype=np.float32),
-    }
-
-
-@pytest.mark.parametrize('case', list(d2l_cases()))
+@pytest.mark.parametrize('case', list(d2l_images()))
 def test_camera_only_row_d2l_is_depthimage_to_laserscan_bit_for_bit(case):
-    depth = d2l_cases()[case]
+    depth = d2l_images()[case]
     stream: FusionStream[int] = FusionStream(camera_only())
     stream.add_camera_info(D2L_CAMERA)
     (out,) = stream.add_depth(NS, depth, NS, 'camera_depth_frame', token=7)
     assert out.token == 7
     assert out.fused is not None
     angle_min, angle_max, increment, ranges = d2l_scan_loop(
-        depth, 570.3422241210938, 314.5, 235.5, scan_height=1, range_min=0.45, range_max=10.0
+        depth, D2L_FX, D2L_CX, D2L_CY, scan_height=1, range_min=0.45, range_max=10.0
     )
     np.testing.assert_array_equal(out.fused.ranges, ranges)
     assert out.fused.angle_min == angle_min
@@ -173,11 +153,11 @@ def test_camera_only_row_d2l_is_depthimage_to_laserscan_bit_for_bit(case):
 def test_camera_only_output_frame_labels_the_row_scan_as_depthimage_to_laserscan_does():
     stream: FusionStream[int] = FusionStream(camera_only(output_frame='camera_link'))
     stream.add_camera_info(D2L_CAMERA)
-    (out,) = stream.add_depth(NS, d2l_cases()['fixture'], NS, 'camera_depth_frame', token=1)
+    (out,) = stream.add_depth(NS, d2l_images()['fixture'], NS, 'camera_depth_frame', token=1)
     assert out.fused is not None
     assert out.fused.frame_id == 'camera_link'
     expected = row_scan(
-        d2l_cases()['fixture'], D2L_CAMERA, range_min=0.45, range_max=10.0, d2l_compat=True
+        d2l_images()['fixture'], D2L_CAMERA, range_min=0.45, range_max=10.0, d2l_compat=True
     )
     np.testing.assert_array_equal(out.fused.ranges, expected.ranges)
 

@@ -1,0 +1,90 @@
+"""`scanfuse bag` in the drop-in modes (issue 27): LiDARs only (the mergers' use) and camera
+only (depthimage_to_laserscan's), on bags written with rosbags and read back with it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+import yaml
+from rosbags.highlevel import AnyReader
+
+from scanfuse import BagError, FusionConfig
+from scanfuse.cli import main
+from scanfuse.ros.bag import fuse_bag
+from tests.support.modes import (
+    D2L_CX,
+    D2L_CY,
+    D2L_FX,
+    D2L_RANGE,
+    camera_messages,
+    camera_only_params,
+    d2l_images,
+    lidar_messages,
+    lidars_only_params,
+    room_truth,
+)
+from tests.support.reference import d2l_scan_loop
+from tests.support.synthetic import write_bag
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def _fused(path: Path, topic: str = '/scan_fused') -> list[tuple[int, object]]:
+    with AnyReader([path]) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        return [
+            (t, reader.deserialize(raw, c.msgtype))
+            for c, t, raw in reader.messages(connections=connections)
+        ]
+
+
+def _params_file(path: Path, values: dict) -> Path:
+    path.write_text(yaml.safe_dump({'scanfuse': {'ros__parameters': values}}))
+    return path
+
+
+def test_two_corner_lidars_without_a_camera_through_scanfuse_bag(tmp_path):
+    source = write_bag(tmp_path / 'in', lidar_messages(10))
+    params = _params_file(tmp_path / 'params.yaml', lidars_only_params())
+    assert main(['bag', str(source), str(tmp_path / 'out'), '--params', str(params)]) == 0
+    fused = _fused(tmp_path / 'out')
+    assert len(fused) == 10  # one per front scan
+    for _, scan in fused:
+        assert scan.header.frame_id == 'base_link'
+        assert len(scan.ranges) == 720
+        covered, error = room_truth(scan)
+        assert covered >= 0.95
+        assert error <= 0.02
+
+
+def test_a_lidar_only_bag_without_depth_topic_empty_says_how(tmp_path):
+    source = write_bag(tmp_path / 'in', lidar_messages(2))
+    values = {k: v for k, v in lidars_only_params().items() if k != 'depth_topic'}
+    with pytest.raises(BagError, match="for LiDARs or clouds only set depth_topic: ''"):
+        fuse_bag(source, tmp_path / 'out', config=FusionConfig.from_dict(values))
+
+
+def test_camera_only_row_d2l_through_scanfuse_bag_is_depthimage_to_laserscan(tmp_path):
+    images = d2l_images()
+    source = write_bag(tmp_path / 'in', camera_messages(list(images.values())))
+    params = _params_file(tmp_path / 'params.yaml', camera_only_params())
+    assert main(['bag', str(source), str(tmp_path / 'out'), '--params', str(params)]) == 0
+    fused = _fused(tmp_path / 'out')
+    assert len(fused) == len(images)
+    for (name, image), (_, scan) in zip(images.items(), fused, strict=True):
+        angle_min, angle_max, increment, ranges = d2l_scan_loop(
+            image, D2L_FX, D2L_CX, D2L_CY, scan_height=1, range_min=D2L_RANGE[0],
+            range_max=D2L_RANGE[1],
+        )  # fmt: skip
+        np.testing.assert_array_equal(np.asarray(scan.ranges), ranges, err_msg=name)
+        assert np.float32(scan.angle_min) == np.float32(angle_min)
+        assert np.float32(scan.angle_max) == np.float32(angle_max)
+        assert np.float32(scan.angle_increment) == np.float32(increment)
+        assert (scan.range_min, scan.range_max) == pytest.approx(D2L_RANGE)
+        assert scan.header.frame_id == 'camera_depth_frame'
+    # Each scan carries its image's stamp.
+    stamps = [s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for _, s in fused]
+    assert stamps == [1_000_000_000 + k * 33_333_333 for k in range(len(images))]
