@@ -66,6 +66,7 @@ class State(str, Enum):
     PASS_THROUGH = 'pass-through (camera silent)'  # noqa: S105 - not a password
     NO_CAMERA_INFO = 'pass-through (no CameraInfo)'
     NO_LIDAR = 'no LiDAR scans: publishing nothing'
+    NO_DEPTH = 'no depth images (no LiDAR): publishing nothing'
     CAMERA_UNUSABLE = 'camera input unusable'
     NO_EXTRINSICS = 'pass-through (extrinsics refused)'
     TOO_SLOW = 'processing too slow'
@@ -320,9 +321,10 @@ class LiveFusion:
             self.stream.note_malformed('depth image', err)
             self._window.malformed_depth += 1
             return self._outputs(self.stream.tick(_ns(now)))
+        # Without a LiDAR the first camera's frame is an output: never published as is.
         return self._outputs(
             self.stream.add_depth(
-                image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source
+                image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source, token=b''
             )
         )
 
@@ -357,7 +359,7 @@ class LiveFusion:
             cloud = cloud_from_cdr(raw, self.store)
             return self._outputs(
                 self.stream.add_cloud(
-                    cloud.stamp_ns, cloud.points, _ns(now), cloud.frame_id, source
+                    cloud.stamp_ns, cloud.points, _ns(now), cloud.frame_id, source, b''
                 )
             )
         except ScanfuseError as err:
@@ -561,6 +563,8 @@ class LiveFusion:
         return next((p for p in problems if p is not None), (Level.OK, State.FUSING, 'fusing'))
 
     def _lidar_problem(self, now: float) -> Problem | None:
+        if not self.config.has_lidar:
+            return None  # a camera-only or clouds-only robot
         lidar_age = now - (self._last_scan if self._last_scan is not None else self._started or now)
         if self._last_scan is not None and lidar_age <= self.lidar_timeout:
             return None
@@ -569,7 +573,7 @@ class LiveFusion:
         return Level.ERROR, State.NO_LIDAR, message
 
     def _camera_info_problem(self) -> Problem | None:
-        if self.stream.camera is not None:
+        if self.stream.camera is not None or not self.config.has_camera:
             return None
         topic = self.config.camera_info_topic
         if self._camera_info_error is not None:
@@ -628,6 +632,8 @@ class LiveFusion:
 
     def _silence_problem(self, camera_age: float, window: _Window) -> Problem | None:
         config = self.config
+        if not config.has_camera:
+            return None
         silent_now = camera_age > config.camera_timeout
         if not (silent_now or window.passed.get(Passed.CAMERA_SILENT)):
             return None
@@ -642,6 +648,9 @@ class LiveFusion:
             if silent_now
             else 'within camera_timeout for a part of the last report period'
         )
+        if not config.has_lidar:  # the camera makes every output: none without it
+            message = f'no depth image on {config.depth_topic} {age}: publishing nothing'
+            return Level.ERROR, State.NO_DEPTH, message
         message = f'no depth image on {config.depth_topic} {age}: LiDAR passed through'
         return Level.WARN, State.PASS_THROUGH, message
 
