@@ -12,7 +12,9 @@ from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError
+from scanfuse.motion import PlanarPose
 from scanfuse.output import grid_between
+from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream, Passed
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 from tests.support.modes import (
@@ -227,3 +229,91 @@ def test_clouds_only_report_the_slab_box_and_not_the_floor():
     np.testing.assert_allclose(out.fused.ranges[ahead], 1.5 / np.cos(angles[ahead]), atol=0.03)
     # Everywhere else only floor: nothing.
     assert not np.isfinite(out.fused.ranges[np.abs(angles) > math.atan2(0.25, 1.5)]).any()
+
+
+# ---------------------------------------------------------------- fixed rate
+
+OMEGA = 1.0  # rad/s: the robot turns on the spot at the room's centre
+LIDAR_AT = (0.2, 0.0)  # the LiDAR 0.2 m ahead of the base, so turning also moves it
+
+
+def turning_robot(publish_rate: float, **changes):
+    """A robot turning at OMEGA with a 360-degree LiDAR (0.25 degrees, no de-skew needed:
+    time_increment 0) at 10 Hz, odometry at 100 Hz; outputs at `publish_rate`."""
+    config = FusionConfig.from_dict(
+        {
+            'use_tf': False,
+            'memory': False,
+            'depth_topic': '',
+            'publish_rate': publish_rate,
+            'lidar_x': LIDAR_AT[0],
+            'lidar_y': LIDAR_AT[1],
+            **changes,
+        }
+    )
+    return FusionStream(config)
+
+
+def lidar_in_world(t: float) -> tuple[tuple[float, float], float]:
+    yaw = OMEGA * t
+    return (LIDAR_AT[0] * math.cos(yaw), LIDAR_AT[0] * math.sin(yaw)), yaw
+
+
+def turning_scan(t_ns: int) -> Scan:
+    increment = math.radians(0.25)
+    angles = -math.pi + increment * np.arange(1440)
+    origin, yaw = lidar_in_world(t_ns / 1e9)
+    return Scan(
+        angle_min=-math.pi,
+        angle_max=float(angles[-1]),
+        angle_increment=increment,
+        range_min=0.05,
+        range_max=20.0,
+        ranges=square_room_ranges(origin, yaw, angles, HALF).astype(np.float32),
+        frame_id='laser',
+        stamp_ns=t_ns,
+    )
+
+
+def run_turning(stream, seconds: float, *, scans_until: float | None = None):
+    """Odometry every 10 ms and a scan every 100 ms (until `scans_until`), in stamp order."""
+    outputs = []
+    for k in range(round(seconds * 100) + 1):
+        t_ns = NS + k * 10_000_000
+        stream.add_odometry(t_ns, PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9))
+        if k % 10 == 0 and (scans_until is None or k / 100 <= scans_until):
+            outputs += stream.add_scan(turning_scan(t_ns), k, t_ns)
+        else:
+            outputs += stream.tick(t_ns)
+    return outputs + stream.finish()
+
+
+def test_a_fixed_rate_moves_a_10_hz_lidar_to_20_hz_stamps_while_turning_at_1_rad_s():
+    outputs = run_turning(turning_robot(20.0), 1.0)
+    stamps = [out.fused.stamp_ns for out in outputs]
+    assert stamps == [NS + k * 50_000_000 for k in range(21)]
+    for out in outputs:
+        origin, yaw = lidar_in_world(out.fused.stamp_ns / 1e9)
+        truth = square_room_ranges(origin, yaw, out.fused.angles(), HALF)
+        finite = np.isfinite(out.fused.ranges)
+        assert finite.mean() >= 0.95
+        np.testing.assert_allclose(out.fused.ranges[finite], truth[finite], atol=0.02)
+    # Between scans (every other output) the scan 50 ms old is moved: without the move a
+    # 0.05 rad turn would put the walls off by far more than 2 cm.
+    unmoved = turning_scan(NS).ranges
+    origin, yaw = lidar_in_world(0.05)
+    truth = square_room_ranges(origin, yaw, outputs[1].fused.angles(), HALF)
+    assert np.nanmax(np.abs(unmoved - truth)) > 0.1
+
+
+def test_a_fixed_rate_does_not_move_a_scan_older_than_its_max_time_offset():
+    # Scans stop after 0.3 s; odometry goes on: outputs go on only while the last scan is
+    # at most max_time_offset (0.1 s) old.
+    outputs = run_turning(turning_robot(20.0), 1.0, scans_until=0.3)
+    stamps = [out.fused.stamp_ns for out in outputs]
+    assert stamps == [NS + k * 50_000_000 for k in range(9)]  # up to 0.4 s
+
+
+def test_a_fixed_rate_needs_a_lidar():
+    with pytest.raises(ConfigError, match='publish_rate moves LiDAR scans to its stamps'):
+        FusionConfig.from_dict({'scan_topic': '', 'publish_rate': 20.0})

@@ -300,6 +300,17 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description='last angle of the output grid, radians (with angle_increment or no LiDAR)',
     )
+    publish_rate: float = Field(
+        0.0,
+        ge=0.0,
+        le=1000.0,
+        allow_inf_nan=False,
+        description=(
+            'Hz; 0: one output per scan of the first LiDAR; > 0: outputs stamped k / '
+            'publish_rate, each the freshest scan (at most its max_time_offset old) moved to '
+            'that stamp through odometry, the other sources paired with it as with a scan'
+        ),
+    )
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
@@ -453,6 +464,12 @@ class FusionConfig(BaseModel):
             msg = (
                 'no source: scan_topic and depth_topic are empty and no cloud is named; '
                 'give at least one LiDAR, depth camera or cloud'
+            )
+            raise ValueError(msg)
+        if self.publish_rate > 0.0 and not self.has_lidar:
+            msg = (
+                'publish_rate moves LiDAR scans to its stamps and needs a LiDAR; without one '
+                'every depth frame (or cloud) makes an output: set publish_rate: 0'
             )
             raise ValueError(msg)
         if self.angle_increment > 0.0 and self.angle_max <= self.angle_min:

@@ -24,6 +24,7 @@ from scanfuse.scan import AngleGrid, Scan
 
 if TYPE_CHECKING:
     from scanfuse.config import FusionConfig
+    from scanfuse.motion import PlanarMotion
     from scanfuse.transforms import Transform
 
 # The output grid's step when nothing gives one (no LiDAR, obstacle method or clouds only):
@@ -80,9 +81,13 @@ def rebinned_lidar(
     base_to_output: Transform,
     grid: AngleGrid,
     frame_id: str,
+    *,
+    motion: PlanarMotion = IDENTITY_MOTION,
+    stamp_ns: int | None = None,
 ) -> Scan:
     """`scan`'s finite readings as points, placed in the output frame and binned on `grid`
-    (nearest per slot), with `scan`'s stamp and times. Readings without a point (+Inf, NaN)
+    (nearest per slot), with `scan`'s stamp and times; or moved by `motion` (in the output
+    frame, from `scan`'s stamp to `stamp_ns`) and stamped then. Readings without a point (+Inf, NaN)
     become NaN: no reading in the output frame. The limits: 0 (a reading from another origin
     may be nearer than the LiDAR's own range_min) up to the LiDAR's range_max plus its
     distance from the output origin."""
@@ -94,7 +99,7 @@ def rebinned_lidar(
         base_to_laser,
         base_to_output,
         grid,
-        motion=IDENTITY_MOTION,
+        motion=motion,
         min_height=-math.inf,
         max_height=math.inf,
         range_min=0.0,
@@ -103,6 +108,6 @@ def rebinned_lidar(
     return binned.with_ranges(
         binned.ranges,
         frame_id=frame_id,
-        stamp_ns=scan.stamp_ns,
+        stamp_ns=scan.stamp_ns if stamp_ns is None else stamp_ns,
         scan_time=scan.scan_time,
     )

@@ -101,6 +101,8 @@ STILL_SPEED = 0.01
 STILL_TURN_RATE = 0.02
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
+# Scans kept for `publish_rate`: only the freshest within max_time_offset of a stamp is used.
+RATE_SCANS = 8
 
 
 def seconds_to_ns(seconds: float) -> int:
@@ -205,6 +207,9 @@ class _Pending(Generic[T]):
     arrived_ns: int
     deadline_ns: float
     assembled: bool = False  # made of fragments: no single message's bytes stand for it
+    # Already in the output frame and grid (a fixed rate's scan moved to its stamp), and
+    # where that frame lies on the base; None: the LiDAR's scan as it came.
+    base_to_output: Transform | None = None
 
 
 @dataclass(frozen=True)
@@ -254,6 +259,9 @@ class FusionStream(Generic[T]):
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
         self.assembler: FragmentAssembler[T] | None = None
+        # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
+        self._rate_scans: deque[tuple[Scan, T]] = deque(maxlen=RATE_SCANS)
+        self._next_output_ns: int | None = None
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
@@ -285,6 +293,11 @@ class FusionStream(Generic[T]):
         self._parameters = parameters
         self._max_offset_ns = seconds_to_ns(pipeline.config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
+        self._period_ns = round(1e9 / config.publish_rate) if config.publish_rate > 0 else 0
+        lidars = config.sources.lidars
+        own = lidars[0].max_time_offset if lidars else None
+        # How old a scan a fixed-rate output may move to its stamp (its bounded extrapolation).
+        self._scan_age_ns = seconds_to_ns(config.max_time_offset if own is None else own)
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
@@ -430,6 +443,9 @@ class FusionStream(Generic[T]):
                 'with the frame nearest its own stamp, in arrival order',
             )
         self._newest_scan_ns = max(scan.stamp_ns, self._newest_scan_ns or scan.stamp_ns)
+        if self._period_ns:
+            self._rate_scans.append((scan, token))  # outputs at the rate's stamps: `_schedule`
+            return
         self._pending.append(
             _Pending(scan, token, now_ns, now_ns + self.pair_wait_ns, assembled=assembled)
         )
@@ -563,6 +579,7 @@ class FusionStream(Generic[T]):
             arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
             for revolution, token in self.assembler.flush():
                 self._admit(revolution, token, arrived or 0, assembled=True)
+        self._schedule(self._newest_scan_ns or 0)
         out = []
         while self._pending:
             pending = self._pending.popleft()
@@ -597,11 +614,74 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ pairing
 
     def _release(self, now_ns: int) -> list[StreamOutput[T]]:
+        self._schedule(now_ns)
         out = []
         while self._pending and self._ready(self._pending[0], now_ns):
             out.append(self._settle(self._pending.popleft()))
         self._prune_frames()
         return out
+
+    # ------------------------------------------------------------ fixed rate
+
+    def _schedule(self, now_ns: int) -> None:
+        """With `publish_rate`: an output for every stamp k / publish_rate that the newest
+        scan or odometry has reached, made of the freshest scan at most `_scan_age_ns` before
+        it, moved there (`_moved_to`) and then waiting for the other sources as a scan
+        does. A stamp with no such scan, or that odometry cannot reach, is skipped."""
+        if not self._period_ns or not self._rate_scans:
+            return
+        period = self._period_ns
+        reach = max(self._rate_scans[-1][0].stamp_ns, self.odometry.newest_ns or 0)
+        first = self._next_output_ns
+        if first is None or reach - first > self._scan_age_ns + period:
+            # The first stamp, or after a gap: none older than a scan could still serve.
+            earliest = min(scan.stamp_ns for scan, _ in self._rate_scans)
+            first = max(earliest, reach - self._scan_age_ns - period)
+            first = -(-first // period) * period
+        stamp = first
+        while stamp <= reach:
+            fresh = [
+                (scan, token)
+                for scan, token in self._rate_scans
+                if 0 <= stamp - scan.stamp_ns <= self._scan_age_ns
+            ]
+            if fresh:
+                scan, token = max(fresh, key=lambda item: item[0].stamp_ns)
+                moved = self._moved_to(scan, stamp)
+                if moved is not None:
+                    deadline = now_ns + self.pair_wait_ns
+                    # Published anew (`assembled`): no received message's bytes stand for it.
+                    self._pending.append(
+                        _Pending(
+                            moved[0], token, now_ns, deadline, assembled=True,
+                            base_to_output=moved[1],
+                        )
+                    )  # fmt: skip
+            stamp += period
+        self._next_output_ns = stamp
+
+    def _moved_to(self, scan: Scan, stamp_ns: int) -> tuple[Scan, Transform] | None:
+        """`scan` (de-skewed) in the output frame and grid, moved from its stamp to
+        `stamp_ns` through odometry; None when odometry does not cover the move."""
+        lidar, _ = self._deskew(scan)
+        config = self.config
+        frame = config.output_frame or lidar.frame_id
+        base_to_laser = self.base_to_laser(lidar.frame_id)
+        try:
+            base_to_output = self.base_to_output(frame, lidar.frame_id)
+        except ScanfuseError as err:
+            self.note_malformed('scan', err)
+            return None
+        motion, _ = self._motion(lidar.stamp_ns, stamp_ns, base_to_output)
+        if motion is None:
+            self.counts.passed[Passed.NO_MOTION] = self.counts.passed.get(Passed.NO_MOTION, 0) + 1
+            return None
+        wide = full_circle(lidar) if config.full_circle else None
+        grid = configured_grid(config) or (lidar if wide is None else wide).grid
+        moved = rebinned_lidar(
+            lidar, base_to_laser, base_to_output, grid, frame, motion=motion, stamp_ns=stamp_ns
+        )
+        return moved, base_to_output
 
     def _ready(self, pending: _Pending[T], now_ns: int) -> bool:
         if self.camera is None:
@@ -653,8 +733,11 @@ class FusionStream(Generic[T]):
 
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan
-        lidar, deskewed = self._deskew(scan)
-        lidar, base_to_output = self._to_output(lidar)
+        if pending.base_to_output is not None:  # moved to a fixed rate's stamp already
+            lidar, deskewed, base_to_output = scan, False, pending.base_to_output
+        else:
+            lidar, deskewed = self._deskew(scan)
+            lidar, base_to_output = self._to_output(lidar)
         if self.camera is None:
             return self._pass(pending, lidar, deskewed, Passed.NO_CAMERA_INFO, base_to_output)
         frame = self._nearest_frame(scan.stamp_ns)

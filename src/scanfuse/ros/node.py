@@ -361,6 +361,12 @@ class ScanfuseNode:
 
     def _on_odometry(self, raw: bytes) -> None:
         self._guard('odometry', lambda: self.live.on_odometry(raw))
+        self._on_motion()
+
+    def _on_motion(self) -> None:
+        """With publish_rate, odometry reaching an output's stamp releases it."""
+        if self.live.config.publish_rate > 0.0:
+            self._on_tick()
 
     def _on_imu(self, raw: bytes) -> None:
         self._guard('imu', lambda: self.live.on_imu(raw))
@@ -372,6 +378,7 @@ class ScanfuseNode:
     def _on_tf(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=False)
         self.view.log('/tf', raw)
+        self._on_motion()
 
     # ------------------------------------------------------------ data
 
