@@ -317,3 +317,37 @@ def test_a_fixed_rate_does_not_move_a_scan_older_than_its_max_time_offset():
 def test_a_fixed_rate_needs_a_lidar():
     with pytest.raises(ConfigError, match='publish_rate moves LiDAR scans to its stamps'):
         FusionConfig.from_dict({'scan_topic': '', 'publish_rate': 20.0})
+
+
+# ---------------------------------------------------------------- trigger
+
+
+def test_trigger_names_the_lidar_whose_scans_make_the_outputs():
+    config = lidars_only(trigger='rear', output_frame='', angle_increment=0.0)
+    assert [s.name for s in config.sources.lidars] == ['rear', 'front']
+    assert config.scan_topic == '/rear/scan'  # the one-source parameters follow it
+    assert config.with_changes(memory=False).sources == config.sources
+    stream: FusionStream[int] = FusionStream(config)
+    front = lidar_scan(*FRONT, 1080, FOV, 'front', stamp=NS - 20_000_000)
+    rear = lidar_scan(*REAR, 1080, FOV, 'rear')
+    assert stream.add_scan(front, 0, NS, source='front') == []  # no output of its own
+    (out,) = stream.add_scan(rear, 1, NS + 1, source='rear')
+    assert out.fused is not None
+    assert (out.fused.frame_id, out.fused.stamp_ns) == ('rear', rear.stamp_ns)
+    # The rear LiDAR's frame, filled by the front one: the room from the rear corner.
+    covered, error = covered_and_true(out.fused, *REAR)
+    assert error <= 0.02
+    assert covered == 1.0
+
+
+def test_a_trigger_that_is_no_source_or_cannot_trigger_is_refused():
+    with pytest.raises(ConfigError, match=r"trigger 'side' is no named source \(named: front"):
+        lidars_only(trigger='side')
+    cameras = {
+        'cameras': ['depth'],
+        'depth': {'depth_topic': '/d', 'camera_info_topic': '/i'},
+        'trigger': 'depth',
+    }
+    with pytest.raises(ConfigError, match=r"trigger 'depth' is a camera: .* without a LiDAR"):
+        FusionConfig.from_dict(cameras)
+    assert FusionConfig.from_dict({**cameras, 'scan_topic': ''}).trigger == 'depth'

@@ -300,6 +300,13 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description='last angle of the output grid, radians (with angle_increment or no LiDAR)',
     )
+    trigger: str = Field(
+        '',
+        description=(
+            "the named source whose messages make the outputs (its frame is output_frame's "
+            'default); empty: the first LiDAR (no LiDAR: the first camera, else the first cloud)'
+        ),
+    )
     publish_rate: float = Field(
         0.0,
         ge=0.0,
@@ -466,6 +473,8 @@ class FusionConfig(BaseModel):
                 'give at least one LiDAR, depth camera or cloud'
             )
             raise ValueError(msg)
+        if self.trigger:
+            _check_trigger(self)
         if self.publish_rate > 0.0 and not self.has_lidar:
             msg = (
                 'publish_rate moves LiDAR scans to its stamps and needs a LiDAR; without one '
@@ -506,6 +515,7 @@ class FusionConfig(BaseModel):
         """
         values, named = split_sources(values)
         if named is not None:
+            named = _trigger_first(named, values.get('trigger'))
             values = {**values, **_primary_from_sources(named), 'sources': named}
         try:
             return cls.model_validate(values)
@@ -537,6 +547,53 @@ class FusionConfig(BaseModel):
         current = self.model_dump(exclude={'sources'})
         current.update(sources_to_params(self.sources))
         return self.from_dict({**current, **changes})
+
+
+def _trigger_first(named: dict[str, Any], trigger: object) -> dict[str, Any]:
+    """The source lists with the `trigger` source first in its own (the first of a kind is
+    the one that triggers); unchanged when no listed source has that name."""
+    if not trigger:
+        return named
+    out = dict(named)
+    for kind in ('lidars', 'cameras', 'clouds'):
+        items = named.get(kind)
+        if not isinstance(items, list):
+            continue
+        chosen = [item for item in items if isinstance(item, dict) and item.get('name') == trigger]
+        if chosen:
+            out[kind] = chosen + [item for item in items if item is not chosen[0]]
+    return out
+
+
+def _check_trigger(config: FusionConfig) -> None:
+    """ValueError unless `trigger` names the source that makes the outputs: a LiDAR, or
+    without a LiDAR a camera, or with neither a cloud."""
+    sources, trigger = config.sources, config.trigger
+    names = {
+        'lidars': [s.name for s in sources.lidars],
+        'cameras': [s.name for s in sources.cameras],
+        'clouds': [s.name for s in sources.clouds],
+    }
+    kind = next((kind for kind, listed in names.items() if trigger in listed), None)
+    if kind is None:
+        every = [name for listed in names.values() for name in listed]
+        msg = (
+            f'trigger {trigger!r} is no named source (named: {", ".join(every) or "none"}); '
+            'name one of them, or leave trigger empty for the first LiDAR'
+        )
+        raise ValueError(msg)
+    if kind == 'cameras' and config.has_lidar:
+        msg = (
+            f'trigger {trigger!r} is a camera: a camera makes the outputs only on a robot '
+            "without a LiDAR (scan_topic: '' and no lidars); name a LiDAR"
+        )
+        raise ValueError(msg)
+    if kind == 'clouds' and (config.has_lidar or config.has_camera):
+        msg = (
+            f'trigger {trigger!r} is a cloud: a cloud makes the outputs only on a robot '
+            "without LiDAR and camera (scan_topic: '', depth_topic: ''); name a LiDAR"
+        )
+        raise ValueError(msg)
 
 
 def _own_slabs(config: FusionConfig) -> list[tuple[str, float, float]]:
