@@ -754,7 +754,9 @@ class FusionStream(Generic[T]):
             return self._pass(pending, lidar, deskewed, Passed.NO_EXTRINSICS, base_to_output)
         # The camera's points are binned from the output's origin (the LiDAR's, or
         # `output_frame`'s when the LiDAR was re-binned into it).
-        paired = replace(choice.extrinsics, base_to_laser=base_to_output)
+        paired = choice.extrinsics
+        if paired.base_to_laser != base_to_output:
+            paired = replace(paired, base_to_laser=base_to_output)
         motion, compensation = self._motion(frame.stamp_ns, scan.stamp_ns, base_to_output)
         if motion is None:
             return self._pass(pending, lidar, deskewed, Passed.NO_MOTION, base_to_output)
