@@ -76,6 +76,9 @@ def test_two_corner_lidars_read_the_room_from_base_link_over_360_degrees():
     covered, error = covered_and_true(out.fused)
     assert covered >= 0.95
     assert error <= 0.02
+    # No camera is configured: nothing was passed over for want of one.
+    assert out.passed is None
+    assert stream.counts.passed == {}
 
 
 def test_one_corner_lidar_in_base_link_is_true_where_it_sees_and_empty_behind_it():

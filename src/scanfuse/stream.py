@@ -739,7 +739,9 @@ class FusionStream(Generic[T]):
             lidar, deskewed = self._deskew(scan)
             lidar, base_to_output = self._to_output(lidar)
         if self.camera is None:
-            return self._pass(pending, lidar, deskewed, Passed.NO_CAMERA_INFO, base_to_output)
+            # No camera configured (LiDARs only): the LiDARs are the output, nothing passed.
+            reason = Passed.NO_CAMERA_INFO if self.config.has_camera else None
+            return self._pass(pending, lidar, deskewed, reason, base_to_output)
         frame = self._nearest_frame(scan.stamp_ns)
         if frame is None:
             silent = (
@@ -958,10 +960,13 @@ class FusionStream(Generic[T]):
         pending: _Pending[T],
         lidar: Scan,
         deskewed: bool,
-        reason: Passed,
+        reason: Passed | None,
         base_to_output: Transform | None = None,
     ) -> StreamOutput[T]:
-        self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        """The LiDAR (and the other sources) without the first camera, for `reason`; None:
+        no camera is configured, so nothing was passed over."""
+        if reason is not None:
+            self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
         # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's are.
         clean = _without_error_values(lidar)
         output = StreamOutput(

@@ -96,6 +96,13 @@ D2L_CAMERA = CameraModel.from_intrinsics(
     640, 480, D2L_FX, D2L_FX, D2L_CX, D2L_CY, frame_id='camera_depth_frame'
 )
 D2L_RANGE = (0.45, 10.0)
+# The same camera at a quarter of the resolution: over DDS a 640x480 float image is 1.2 MB
+# of best-effort fragments, which a loaded test machine loses; 160x120 is the size the other
+# DDS tests send.
+SMALL_CAMERA = CameraModel.from_intrinsics(
+    160, 120, D2L_FX / 4, D2L_FX / 4, (D2L_CX + 0.5) / 4 - 0.5, (D2L_CY + 0.5) / 4 - 0.5,
+    frame_id='camera_depth_frame',
+)  # fmt: skip
 
 
 def camera_only_params() -> dict[str, Any]:
@@ -112,16 +119,16 @@ def camera_only_params() -> dict[str, Any]:
     }
 
 
-def d2l_images() -> dict[str, np.ndarray]:
+def d2l_images(shape: tuple[int, int] = (480, 640)) -> dict[str, np.ndarray]:
     """The upstream test's images (test/DepthImageToLaserScanTest.cpp): every pixel 3.855 m
     (its fixture), random 0-0.5 m, NaN, +Inf, -Inf."""
     rng = np.random.default_rng(8675309)
     return {
-        'fixture': np.full((480, 640), 0x0F0F, dtype=np.uint16),
-        'random': rng.integers(0, 500, size=(480, 640), endpoint=True).astype(np.uint16),
-        'nan': np.full((480, 640), np.nan, dtype=np.float32),
-        'inf': np.full((480, 640), np.inf, dtype=np.float32),
-        'minus_inf': np.full((480, 640), -np.inf, dtype=np.float32),
+        'fixture': np.full(shape, 0x0F0F, dtype=np.uint16),
+        'random': rng.integers(0, 500, size=shape, endpoint=True).astype(np.uint16),
+        'nan': np.full(shape, np.nan, dtype=np.float32),
+        'inf': np.full(shape, np.inf, dtype=np.float32),
+        'minus_inf': np.full(shape, -np.inf, dtype=np.float32),
     }
 
 
@@ -130,12 +137,18 @@ def camera_messages(
     depth_topic: str = '/camera/depth/image_raw',
     info_topic: str = '/camera/depth/camera_info',
     start_ns: int = 1_000_000_000,
+    period_ns: int = 33_333_333,
+    lead: int = 0,
+    camera: CameraModel = D2L_CAMERA,
 ) -> list[tuple[str, str, int, bytes]]:
-    """CameraInfo and one depth image per entry of `images`, 1/30 s apart."""
+    """CameraInfo and one depth image per entry of `images`, `period_ns` apart; `lead`
+    CameraInfo messages alone before the first (over DDS the calibration then arrives
+    before any image: the two topics' samples are not ordered between them)."""
     messages = []
-    for k, image in enumerate(images):
-        stamp = start_ns + k * 33_333_333
-        messages.append((info_topic, CAMERA_INFO, stamp, camera_to_cdr(D2L_CAMERA, stamp_ns=stamp)))
-        raw = depth_to_cdr(image, frame_id='camera_depth_frame', stamp_ns=stamp)
-        messages.append((depth_topic, IMAGE, stamp, raw))
+    for k in range(-lead, len(images)):
+        stamp = start_ns + k * period_ns
+        messages.append((info_topic, CAMERA_INFO, stamp, camera_to_cdr(camera, stamp_ns=stamp)))
+        if k >= 0:
+            raw = depth_to_cdr(images[k], frame_id='camera_depth_frame', stamp_ns=stamp)
+            messages.append((depth_topic, IMAGE, stamp, raw))
     return messages

@@ -582,6 +582,9 @@ class LiveFusion:
                 f'({self._camera_info_error}); LiDAR passed through'
             )
             return Level.WARN, State.CAMERA_UNUSABLE, message
+        if not self.config.has_lidar:  # the camera makes every output: none without it
+            message = f'no CameraInfo on {topic}: publishing nothing'
+            return Level.ERROR, State.NO_CAMERA_INFO, message
         message = f'no CameraInfo on {topic}: LiDAR passed through'
         return Level.WARN, State.NO_CAMERA_INFO, message
 
