@@ -74,7 +74,7 @@ if TYPE_CHECKING:
     from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
     from scanfuse.pipeline import StageTimings
-    from scanfuse.scan import Scan
+    from scanfuse.scan import AngleGrid, Scan
 
 logger = logging.getLogger(__name__)
 
@@ -210,6 +210,17 @@ class _Pending(Generic[T]):
     # Already in the output frame and grid (a fixed rate's scan moved to its stamp), and
     # where that frame lies on the base; None: the LiDAR's scan as it came.
     base_to_output: Transform | None = None
+
+
+@dataclass(frozen=True)
+class OutputLayout:
+    """The frame and grid of an output scan, where the frame lies on the base, and the
+    first LiDAR's own scan when it is already that output (None: it is re-binned)."""
+
+    grid: AngleGrid
+    frame: str
+    base_to_output: Transform
+    own: Scan | None = None
 
 
 @dataclass(frozen=True)
@@ -664,23 +675,21 @@ class FusionStream(Generic[T]):
         """`scan` (de-skewed) in the output frame and grid, moved from its stamp to
         `stamp_ns` through odometry; None when odometry does not cover the move."""
         lidar, _ = self._deskew(scan)
-        config = self.config
-        frame = config.output_frame or lidar.frame_id
-        base_to_laser = self.base_to_laser(lidar.frame_id)
         try:
-            base_to_output = self.base_to_output(frame, lidar.frame_id)
+            layout = self._layout(lidar)
         except ScanfuseError as err:
             self.note_malformed('scan', err)
             return None
+        base_to_output = layout.base_to_output
         motion, _ = self._motion(lidar.stamp_ns, stamp_ns, base_to_output)
         if motion is None:
             self.counts.passed[Passed.NO_MOTION] = self.counts.passed.get(Passed.NO_MOTION, 0) + 1
             return None
-        wide = full_circle(lidar) if config.full_circle else None
-        grid = configured_grid(config) or (lidar if wide is None else wide).grid
+        base_to_laser = self.base_to_laser(lidar.frame_id)
         moved = rebinned_lidar(
-            lidar, base_to_laser, base_to_output, grid, frame, motion=motion, stamp_ns=stamp_ns
-        )
+            lidar, base_to_laser, base_to_output, layout.grid, layout.frame, motion=motion,
+            stamp_ns=stamp_ns,
+        )  # fmt: skip
         return moved, base_to_output
 
     def _ready(self, pending: _Pending[T], now_ns: int) -> bool:
@@ -920,22 +929,49 @@ class FusionStream(Generic[T]):
         return plane, on_ground
 
     def _to_output(self, lidar: Scan) -> tuple[Scan, Transform]:
-        """The first LiDAR's scan in the output frame, on the output grid, and where that
-        frame lies on the base. Its own frame and grid (`full_circle`: on a 360-degree grid
-        of its increment, `scan.full_circle`) unless `output_frame` or `angle_increment`
-        say otherwise; then its readings are re-binned from their points
-        (`output.rebinned_lidar`)."""
+        """The first LiDAR's scan in the output frame, on the output grid (`_layout`), and
+        where that frame lies on the base: its readings re-binned from their points
+        (`output.rebinned_lidar`) when the frame or grid is not its own."""
+        layout = self._layout(lidar)
+        if layout.own is not None:
+            return layout.own, layout.base_to_output
+        base_to_laser = self.base_to_laser(lidar.frame_id)
+        scan = rebinned_lidar(lidar, base_to_laser, layout.base_to_output, layout.grid,
+                              layout.frame)  # fmt: skip
+        return scan, layout.base_to_output
+
+    def _layout(self, lidar: Scan) -> OutputLayout:
+        """The output `lidar` (the first LiDAR's scan) makes: its own frame and grid
+        (`full_circle`: a 360-degree grid of its increment, `scan.full_circle`) unless
+        `output_frame` or `angle_increment` say otherwise. TransformError when nothing
+        places `output_frame` (`base_to_output`)."""
         config = self.config
         grid = configured_grid(config)
         frame = config.output_frame or lidar.frame_id
-        same_frame = frame_name(frame) == frame_name(lidar.frame_id)
         wide = full_circle(lidar) if config.full_circle else None
-        if same_frame and grid is None:
-            return (lidar if wide is None else wide), self.base_to_laser(lidar.frame_id)
+        if frame_name(frame) == frame_name(lidar.frame_id) and grid is None:
+            own = lidar if wide is None else wide
+            return OutputLayout(own.grid, frame, self.base_to_laser(lidar.frame_id), own)
         base_to_output = self.base_to_output(frame, lidar.frame_id)
-        grid = grid or (lidar if wide is None else wide).grid
-        base_to_laser = self.base_to_laser(lidar.frame_id)
-        return rebinned_lidar(lidar, base_to_laser, base_to_output, grid, frame), base_to_output
+        return OutputLayout(grid or (lidar if wide is None else wide).grid, frame, base_to_output)
+
+    def prepare(self, lidar: Scan) -> None:
+        """Build the first camera's obstacle tables for the output `lidar` makes (its frame
+        and grid, `_layout`) now, not on the first fused scan (the node calls it when
+        CameraInfo or a new LiDAR grid arrives). Whatever fails is left for that scan to
+        report."""
+        camera = self.camera
+        if camera is None or self.config.method is not Method.OBSTACLE:
+            return
+        try:
+            layout = self._layout(lidar)
+            choice = self.extrinsics_for(layout.frame, camera.frame_id)
+            if choice.extrinsics is None:
+                return
+            paired = replace(choice.extrinsics, base_to_laser=layout.base_to_output)
+            self.pipeline.prepare(camera, paired, layout.grid)
+        except ScanfuseError:
+            return
 
     def base_to_output(self, frame: str, lidar_frame: str = '') -> Transform:
         """Where the output frame `frame` lies on the base: the base itself, TF, or the

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scanfuse.config import Method
 from scanfuse.errors import MessageError, ScanfuseError
 from scanfuse.pipeline import grids_match
 from scanfuse.ros.messages import (
@@ -153,6 +152,7 @@ class LiveFusion:
         self._source_keys: dict[str, bytes | None] = {}  # CameraInfo of other cameras
         self._camera_info_error: str | None = None  # the last CameraInfo was unusable
         self._grid: tuple[AngleGrid, str] | None = None  # the primary LiDAR's grid and frame
+        self._grid_scan: Scan | None = None  # a scan of that grid: the output it makes
         self._sources_reported: tuple[dict[str, int], dict[str, int]] = ({}, {})
 
     # ------------------------------------------------------------ configuration
@@ -291,6 +291,7 @@ class LiveFusion:
             or not (grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id)
         ):
             self._grid = (scan.grid, scan.frame_id)
+            self._grid_scan = scan
             self._prepare_tables()
         return self._add_scan(scan, raw, now, None)
 
@@ -368,17 +369,10 @@ class LiveFusion:
 
     def _prepare_tables(self) -> None:
         """Build the obstacle method's per-camera tables now, when CameraInfo (or a new LiDAR
-        grid) arrives, so the first paired scan does not pay for them (issue 12)."""
-        camera, grid = self.stream.camera, self._grid
-        if camera is None or grid is None or self.config.method is not Method.OBSTACLE:
-            return
-        choice = self.stream.extrinsics_for(grid[1], camera.frame_id)
-        if choice.extrinsics is None:
-            return
-        try:
-            self.stream.pipeline.prepare(camera, choice.extrinsics, grid[0])
-        except ScanfuseError:
-            return  # the first fused scan reports it, as it would without this
+        grid) arrives, so the first paired scan does not pay for them (issue 12): on the
+        output's frame and grid (`FusionStream.prepare`)."""
+        if self._grid_scan is not None:
+            self.stream.prepare(self._grid_scan)
 
     def on_tf(self, raw: RawMessage, *, static: bool) -> None:
         try:
