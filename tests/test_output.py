@@ -14,7 +14,6 @@ from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError
 from scanfuse.motion import PlanarPose
 from scanfuse.output import grid_between
-from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream, Passed
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 from tests.support.modes import (
@@ -22,8 +21,12 @@ from tests.support.modes import (
     D2L_CX,
     D2L_CY,
     D2L_FX,
+    LIDAR_AT,
+    OMEGA,
     camera_only_params,
     d2l_images,
+    lidar_in_world,
+    turning_scan,
 )
 from tests.support.reference import d2l_scan_loop
 from tests.support.render import box_depth, square_room_ranges
@@ -236,9 +239,6 @@ def test_clouds_only_report_the_slab_box_and_not_the_floor():
 
 # ---------------------------------------------------------------- fixed rate
 
-OMEGA = 1.0  # rad/s: the robot turns on the spot at the room's centre
-LIDAR_AT = (0.2, 0.0)  # the LiDAR 0.2 m ahead of the base, so turning also moves it
-
 
 def turning_robot(publish_rate: float, **changes):
     """A robot turning at OMEGA with a 360-degree LiDAR (0.25 degrees, no de-skew needed:
@@ -255,27 +255,6 @@ def turning_robot(publish_rate: float, **changes):
         }
     )
     return FusionStream(config)
-
-
-def lidar_in_world(t: float) -> tuple[tuple[float, float], float]:
-    yaw = OMEGA * t
-    return (LIDAR_AT[0] * math.cos(yaw), LIDAR_AT[0] * math.sin(yaw)), yaw
-
-
-def turning_scan(t_ns: int) -> Scan:
-    increment = math.radians(0.25)
-    angles = -math.pi + increment * np.arange(1440)
-    origin, yaw = lidar_in_world(t_ns / 1e9)
-    return Scan(
-        angle_min=-math.pi,
-        angle_max=float(angles[-1]),
-        angle_increment=increment,
-        range_min=0.05,
-        range_max=20.0,
-        ranges=square_room_ranges(origin, yaw, angles, HALF).astype(np.float32),
-        frame_id='laser',
-        stamp_ns=t_ns,
-    )
 
 
 def run_turning(stream, seconds: float, *, scans_until: float | None = None):

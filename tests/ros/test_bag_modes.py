@@ -12,21 +12,35 @@ from rosbags.highlevel import AnyReader
 
 from scanfuse import BagError, FusionConfig
 from scanfuse.cli import main
+from scanfuse.motion import PlanarPose
 from scanfuse.ros.bag import fuse_bag
-from scanfuse.ros.messages import POINT_CLOUD, cloud_to_cdr
+from scanfuse.ros.messages import (
+    LASER_SCAN,
+    ODOMETRY,
+    POINT_CLOUD,
+    OdometrySample,
+    cloud_to_cdr,
+    odometry_to_cdr,
+    scan_from_msg,
+    scan_to_cdr,
+)
 from tests.support.modes import (
     D2L_CX,
     D2L_CY,
     D2L_FX,
     D2L_RANGE,
+    OMEGA,
     camera_messages,
     camera_only_params,
     d2l_images,
+    lidar_in_world,
     lidar_messages,
     lidars_only_params,
     room_truth,
+    turning_scan,
 )
 from tests.support.reference import d2l_scan_loop
+from tests.support.render import square_room_ranges
 from tests.support.synthetic import write_bag
 
 if TYPE_CHECKING:
@@ -124,3 +138,33 @@ def test_clouds_only_through_scanfuse_bag_find_the_slab_box_not_the_floor(tmp_pa
         ahead = np.abs(angles) < np.arctan2(0.18, 1.5)
         np.testing.assert_allclose(ranges[ahead], 1.5 / np.cos(angles[ahead]), atol=0.03)
         assert not np.isfinite(ranges[np.abs(angles) > np.arctan2(0.25, 1.5)]).any()
+
+
+def test_a_fixed_rate_through_scanfuse_bag_moves_a_turning_robots_scans_to_its_stamps(tmp_path):
+    # The robot of tests/test_output.py: turning at 1 rad/s, a LiDAR 0.2 m ahead of the base
+    # at 10 Hz, odometry at 100 Hz; outputs at 20 Hz.
+    messages = []
+    for k in range(101):
+        t_ns = 1_000_000_000 + k * 10_000_000
+        pose = PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9)
+        odometry = odometry_to_cdr(OdometrySample(t_ns, 'odom', 'base_link', pose))
+        messages.append(('/odom', ODOMETRY, t_ns, odometry))
+        if k % 10 == 0:
+            messages.append(('/scan', LASER_SCAN, t_ns, scan_to_cdr(turning_scan(t_ns))))
+    values = {
+        'use_tf': False,
+        'memory': False,
+        'depth_topic': '',
+        'publish_rate': 20.0,
+        'lidar_x': 0.2,
+    }
+    source = write_bag(tmp_path / 'in', messages)
+    fuse_bag(source, tmp_path / 'out', config=FusionConfig.from_dict(values))
+    fused = [scan_from_msg(message) for _, message in _fused(tmp_path / 'out')]
+    assert sorted(s.stamp_ns for s in fused) == [1_000_000_000 + k * 50_000_000 for k in range(21)]
+    for scan in fused:
+        origin, yaw = lidar_in_world(scan.stamp_ns / 1e9)
+        truth = square_room_ranges(origin, yaw, scan.angles(), 2.0)
+        finite = np.isfinite(scan.ranges)
+        assert finite.mean() >= 0.95
+        np.testing.assert_allclose(scan.ranges[finite], truth[finite], atol=0.02)

@@ -89,6 +89,35 @@ def room_truth(scan: Any) -> tuple[float, float]:
     return float(finite.mean()), error
 
 
+# ---------------------------------------------------------------- a turning robot
+
+OMEGA = 1.0  # rad/s: the robot turns on the spot at the room's centre
+LIDAR_AT = (0.2, 0.0)  # the LiDAR 0.2 m ahead of the base, so turning also moves it
+
+
+def lidar_in_world(t: float) -> tuple[tuple[float, float], float]:
+    """The LiDAR's position and heading in the room `t` seconds after the base's yaw 0."""
+    yaw = OMEGA * t
+    return (LIDAR_AT[0] * math.cos(yaw), LIDAR_AT[0] * math.sin(yaw)), yaw
+
+
+def turning_scan(t_ns: int) -> Scan:
+    """What a 360-degree LiDAR (0.25 degrees, all beams at the stamp) reads at `t_ns`."""
+    increment = math.radians(0.25)
+    angles = -math.pi + increment * np.arange(1440)
+    origin, yaw = lidar_in_world(t_ns / 1e9)
+    return Scan(
+        angle_min=-math.pi,
+        angle_max=float(angles[-1]),
+        angle_increment=increment,
+        range_min=0.05,
+        range_max=20.0,
+        ranges=square_room_ranges(origin, yaw, angles, HALF).astype(np.float32),
+        frame_id='laser',
+        stamp_ns=t_ns,
+    )
+
+
 # ---------------------------------------------------------------- camera only
 
 D2L_FX, D2L_CX, D2L_CY = 570.3422241210938, 314.5, 235.5
