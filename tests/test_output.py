@@ -12,6 +12,7 @@ from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.convert.row import row_scan
 from scanfuse.errors import ConfigError
+from scanfuse.frames import StampedTransform
 from scanfuse.motion import PlanarPose
 from scanfuse.output import grid_between
 from scanfuse.stream import FusionStream, Passed
@@ -232,6 +233,22 @@ def test_camera_only_memory_keeps_a_box_the_camera_turned_away_from():
     assert not np.isfinite(turned.depth_scan.ranges[right]).any()  # not in view now
     truth = 1.0 / np.cos(angles[right] + math.pi / 2)
     np.testing.assert_allclose(turned.fused.ranges[right], truth, atol=0.05 + 0.02 * 1.0)
+
+
+def test_a_camera_tf_cannot_place_makes_no_output_and_says_why(caplog):
+    # TF knows the camera's frame, under another root than base_link: the mounting would be
+    # a guess, so the frame makes no output (counted), as a scan would pass through.
+    stream: FusionStream[int] = FusionStream(camera_only(use_tf=True))
+    stream.add_camera_info(D2L_CAMERA)
+    stream.add_transforms(
+        [StampedTransform('camera_link', 'camera_depth_frame', (0.0, 0.0, 0.0), (0, 0, 0, 1))],
+        static=True,
+    )
+    depth = d2l_images()['fixture']
+    assert stream.add_depth(NS, depth, NS, 'camera_depth_frame', token=1) == []
+    assert stream.counts.passed == {Passed.FUSION_FAILED: 1}
+    expected = 'TF does not relate base_frame base_link to the camera frame camera_depth_frame'
+    assert expected in caplog.text
 
 
 # ---------------------------------------------------------------- clouds only

@@ -805,15 +805,16 @@ class FusionStream(Generic[T]):
         fusion failure, said once) when the camera cannot be placed or the frame converted."""
         try:
             output, extrinsics, base_to_output = self._camera_scan(frame, now_ns, token)
-        except ScanfuseError as err:
+            output = self._with_extras(output, base_to_output)
+            output = self._remember(output, frame, extrinsics, base_to_output)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
             self.note_malformed('fusion', err)
             self.counts.passed[Passed.FUSION_FAILED] = (
                 self.counts.passed.get(Passed.FUSION_FAILED, 0) + 1
             )
             return []
         self.counts.fused += 1
-        output = self._with_extras(output, base_to_output)
-        return [self._remember(output, frame, extrinsics, base_to_output)]
+        return [output]
 
     def _camera_scan(
         self, frame: DepthFrame, now_ns: int, token: T
@@ -883,18 +884,19 @@ class FusionStream(Generic[T]):
         base_frame's)."""
         config = self.config
         frame_id = config.output_frame or config.base_frame
-        try:
-            base_to_output = self.base_to_output(frame_id)
-        except ScanfuseError as err:
-            self.note_malformed('fusion', err)
-            return []
         range_max = max(cloud.range_max for cloud in config.sources.clouds)
         empty = empty_scan(default_grid(config), frame_id, stamp_ns, 0.0, range_max)
         output = StreamOutput(token=token, lidar=empty, fused=empty, depth_scan=None,
                               arrived_ns=now_ns)  # fmt: skip
+        try:
+            base_to_output = self.base_to_output(frame_id)
+            output = self._with_extras(output, base_to_output)
+            output = self._remember(output, None, None, base_to_output)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
+            self.note_malformed('fusion', err)
+            return []
         self.counts.fused += 1
-        output = self._with_extras(output, base_to_output)
-        return [self._remember(output, None, None, base_to_output)]
+        return [output]
 
     def _on_ground(
         self, frame: DepthFrame, extrinsics: Extrinsics
