@@ -25,6 +25,12 @@ decode messages and feed this class; every policy lives here, once:
   if the robot stood still and says so once.
 - **Malformed input** is the adapter's to detect (it decodes); it reports it with
   `note_malformed`, and the stream keeps the counts.
+- **Output.** In the first LiDAR's frame and grid, or in `output_frame` on `angle_min` ..
+  `angle_max` every `angle_increment`, the LiDAR re-binned from its points
+  (`scanfuse.output`). With `publish_rate` the outputs come at that rate, each the freshest
+  scan moved to its stamp (`_schedule`). Without a LiDAR (`scan_topic` empty) each frame of
+  the first camera makes an output (`_camera_triggered`), without LiDAR and camera each
+  message of the first cloud (`_cloud_triggered`).
 
 The stream has no clock of its own: every call that can release scans takes `now_ns`, the
 caller's clock (monotonic time in the node, log time in a bag, simulated time in the
