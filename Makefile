@@ -21,7 +21,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(BIN)/python
-	$(PIP) install -e '.[sim,test,ros,rosbuild,dev]'
+	$(PIP) install -e '.[sim,test,ros,rosbuild,dev,cluster]'
 	$(BIN)/python tools/build_tf2_msgs.py
 	touch $@
 

@@ -302,6 +302,20 @@ def evaluate(
             help='scanfuse parameter file: the robot mounted and every method based on it'
         ),
     ] = None,
+    cluster: Annotated[
+        str | None,
+        typer.Option(
+            '--cluster',
+            help='run every trial as a task on a Ray cluster: HOST:PORT of its head, auto, or '
+            "local (pip install 'scanfuse[cluster]'); replaces --jobs",
+        ),
+    ] = None,
+    max_retries: Annotated[
+        int | None,
+        typer.Option(
+            '--max-retries', help='with --cluster: runs again of a trial whose worker died'
+        ),
+    ] = None,
 ) -> None:
     """Measure every method: scan metrics, maps, closed-loop collisions; write a report.
 
@@ -319,6 +333,8 @@ def evaluate(
         console=Console(),
         jobs=jobs,
         params=params,
+        cluster=cluster,
+        max_retries=max_retries,
     )
 
 

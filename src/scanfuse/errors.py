@@ -33,3 +33,7 @@ class BagError(ScanfuseError):
 
 class CalibrationError(ScanfuseError):
     """The recording cannot fix the camera's mounting (too little floor, too few walls)."""
+
+
+class ClusterError(ScanfuseError):
+    """A Ray cluster cannot be reached or used (not installed, no head, workers lost)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING, Any
 
+from scanfuse.cluster import RayCluster, backend_of
 from scanfuse.config import NODE_ONLY, FusionConfig, read_ros_params
 from scanfuse.errors import ConfigError
 from scanfuse.progress import RichProgress
@@ -72,6 +73,8 @@ def run_evaluate(
     console: Console,
     jobs: int = 1,
     params: Path | None = None,
+    cluster: str | None = None,
+    max_retries: int | None = None,
 ) -> EvaluationResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
@@ -95,11 +98,9 @@ def run_evaluate(
             raise ConfigError(msg)
         changes['trials'] = trials
     make = EvaluationSettings.quick if quick else EvaluationSettings
-    if jobs < 1:
-        msg = f'--jobs must be 1 or more, got {jobs}'
-        raise ConfigError(msg)
+    backend = backend_of(jobs, cluster, max_retries)
     settings = make(**changes)  # type: ignore[arg-type]
-    result = run_evaluation(out, settings, RichProgress(console), jobs=jobs)
+    result = run_evaluation(out, settings, RichProgress(console), backend=backend)
     console.print(table(result))
     robot_rows = amr_table(result)
     if robot_rows is not None:
@@ -107,6 +108,10 @@ def run_evaluate(
     terrain_rows = terrain_table(result)
     if terrain_rows is not None:
         console.print(terrain_rows)
+    if isinstance(backend, RayCluster):
+        console.print(
+            f'{backend.describe()}: {result.retried} trial(s) retried after a worker died'
+        )
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')
     return result

@@ -436,6 +436,17 @@ def markdown(result: EvaluationResult) -> str:
         '',
         timing_note(settings),
         '',
+        *(
+            [
+                (
+                    f'{result.retried} trial(s) ran again on another worker after theirs died '
+                    '(Ray cluster); every trial is counted once.'
+                ),
+                '',
+            ]
+            if result.retried
+            else []
+        ),
         '## Headline',
         '',
         _markdown_table(HEADERS, headline_rows(result)),

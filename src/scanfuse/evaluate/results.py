@@ -133,6 +133,7 @@ class EvaluationResult:
     robots: dict[str, RobotResult] = field(default_factory=dict)  # keyed 'amr/<method>'
     terrain: dict[str, TerrainResult] = field(default_factory=dict)  # keyed by method
     terrain_trials: list[TrialOutcome] = field(default_factory=list)
+    retried: int = 0  # trials run again on a Ray cluster after their worker died
 
     def headline(self) -> dict[str, dict[str, float]]:
         """The numbers the report leads with, per method."""
@@ -221,6 +222,7 @@ class EvaluationResult:
                 terrain_trials=[
                     TrialOutcome(**_none_to_nan(trial)) for trial in data.get('terrain_trials', [])
                 ],
+                retried=int(data.get('retried', 0)),
             )
         except (KeyError, TypeError, json.JSONDecodeError) as err:
             msg = f'not a scanfuse results.json ({err}); write one with `scanfuse evaluate`'

@@ -16,11 +16,10 @@ results. All of it in real sensor time (`scanfuse.sim.simulation`).
 from __future__ import annotations
 
 import math
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
+from scanfuse.cluster import Backend, LocalPool, backend_of, run_tasks
 from scanfuse.evaluate.amr_trials import (
     AMR_FAMILIES,
     AMR_LIDAR,
@@ -76,7 +75,7 @@ from scanfuse.progress import NullProgress, Progress
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Callable, Iterable, Sequence
 
     import numpy as np
     import numpy.typing as npt
@@ -404,6 +403,7 @@ class Evaluation:
             _check_names(kind, names, known)
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
+        self.retried = 0  # trials run again on a Ray cluster after their worker died
         self.trials = trial_specs(list(settings.worlds), settings.trials, settings.time_limit)
         if 'memory' in settings.worlds:
             self.trials += memory_specs(settings.memory, settings.memory_trials)
@@ -464,33 +464,34 @@ class Evaluation:
         ]
         return work
 
-    def run(self, jobs: int = 1) -> None:
-        """Run every trial; `jobs` > 1 runs them in that many processes.
+    def run(
+        self,
+        jobs: int = 1,
+        *,
+        backend: Backend | None = None,
+        job_runner: Callable[[EvaluationSettings, Job], EvaluationPart] | None = None,
+    ) -> None:
+        """Run every trial; `jobs` > 1 runs them in that many processes, `backend` where it
+        says (a local pool or a Ray cluster; it takes the place of `jobs`).
 
         Each process runs single trials into an `Evaluation` of its own; the parent merges
-        their parts in the serial order, so that the result is the serial run's.
+        their parts in the serial order, so that the result is the serial run's. `retried`
+        counts the trials run again after their worker died. `job_runner` runs one job in a
+        worker (`_run_job` unless a test stands in one that fails on purpose).
         """
-        from scanfuse.errors import ConfigError  # noqa: PLC0415
-
-        if jobs < 1:
-            msg = f'--jobs must be 1 or more, got {jobs}'
-            raise ConfigError(msg)
+        backend = backend or backend_of(jobs)
         work = self.jobs()
         self.progress.start('closed-loop and turning trials', len(work))
-        if jobs == 1 or len(work) <= 1:
+        if isinstance(backend, LocalPool) and (backend.jobs == 1 or len(work) <= 1):
             for job in work:
                 self.run_job(job)
                 self.progress.advance()
         else:
-            # spawn: a fresh interpreter per worker, no GL context or numba state forked.
-            context = multiprocessing.get_context('spawn')
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-                futures = [pool.submit(_run_job, self.settings, job) for job in work]
-                for _ in as_completed(futures):
-                    self.progress.advance()
-                parts = [future.result() for future in futures]
-            for part in parts:
+            arguments = [(self.settings, job) for job in work]
+            done = run_tasks(job_runner or _run_job, arguments, backend, self.progress)
+            for part in done.results:
                 self.merge(part)
+            self.retried += done.retried
         self.progress.finish()
 
     def run_job(self, job: Job) -> None:
@@ -763,6 +764,7 @@ class Evaluation:
             robots=robots,
             terrain=terrain,
             terrain_trials=list(self.terrain.outcomes),
+            retried=self.retried,
         )
 
     def _terrain_result(self, name: str) -> TerrainResult:

@@ -27,6 +27,7 @@ from scanfuse.evaluate.runner import (
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from scanfuse.cluster import Backend
     from scanfuse.config import FusionConfig
     from scanfuse.evaluate.results import EvaluationResult
     from scanfuse.progress import Progress
@@ -75,11 +76,16 @@ def _write_maps(evaluation: Evaluation, out: Path) -> list[str]:
 
 
 def run_evaluation(
-    out: Path, settings: EvaluationSettings, progress: Progress | None = None, jobs: int = 1
+    out: Path,
+    settings: EvaluationSettings,
+    progress: Progress | None = None,
+    jobs: int = 1,
+    backend: Backend | None = None,
 ) -> EvaluationResult:
-    """Run the evaluation and write everything into `out`."""
+    """Run the evaluation (on `backend`, else `jobs` local processes) and write everything
+    into `out`."""
     evaluation = Evaluation(settings, progress)
-    evaluation.run(jobs)
+    evaluation.run(jobs, backend=backend)
     if not evaluation.trials and not settings.turning and evaluation.terrain_specs:
         # Only terrain trials: the sprung robot as its parameters describe it.
         reference, config, _ = terrain_simulation(evaluation.terrain_specs[0], settings)
