@@ -316,12 +316,22 @@ def evaluate(
             '--max-retries', help='with --cluster: runs again of a trial whose worker died'
         ),
     ] = None,
+    sweep: Annotated[
+        list[str] | None,
+        typer.Option(
+            '--sweep',
+            help='NAME=V1,V2: evaluate every combination of these fusion parameter values on '
+            'the same trials (repeat for more parameters); writes sweep.md, .json, .png',
+        ),
+    ] = None,
 ) -> None:
     """Measure every method: scan metrics, maps, closed-loop collisions; write a report.
 
     With --params the simulated robot is mounted as the file says (radians throughout), its
     slab is the file's, and every method changes only what defines it (e.g. `row` sets the
     method) on top of the file's values; `scanfuse.yaml` in --out records what was used.
+    With --sweep every combination of the values runs on the same trials instead, and
+    --out holds the comparison (sweep.md, sweep.json, sweep.png).
     """
     from scanfuse.evaluate.cli import run_evaluate  # noqa: PLC0415
 
@@ -335,6 +345,7 @@ def evaluate(
         params=params,
         cluster=cluster,
         max_retries=max_retries,
+        sweeps=sweep or (),
     )
 
 

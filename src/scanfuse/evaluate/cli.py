@@ -21,11 +21,15 @@ EVALUATION_WORLDS = (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from pathlib import Path
 
     from rich.console import Console
 
+    from scanfuse.cluster import Backend
     from scanfuse.evaluate.results import EvaluationResult
+    from scanfuse.evaluate.runner import EvaluationSettings
+    from scanfuse.evaluate.sweep import SweepResult
 
 
 def parse_worlds(worlds: str | None) -> tuple[str, ...] | None:
@@ -75,7 +79,8 @@ def run_evaluate(
     params: Path | None = None,
     cluster: str | None = None,
     max_retries: int | None = None,
-) -> EvaluationResult:
+    sweeps: Sequence[str] = (),
+) -> EvaluationResult | SweepResult:
     """Run the evaluation into `out` and print the headline table and where things are."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
@@ -100,6 +105,8 @@ def run_evaluate(
     make = EvaluationSettings.quick if quick else EvaluationSettings
     backend = backend_of(jobs, cluster, max_retries)
     settings = make(**changes)  # type: ignore[arg-type]
+    if sweeps:
+        return _run_sweep(out, settings, sweeps, backend, console)
     result = run_evaluation(out, settings, RichProgress(console), backend=backend)
     console.print(table(result))
     robot_rows = amr_table(result)
@@ -114,4 +121,39 @@ def run_evaluate(
         )
     console.print(f'report: {out / "report.md"}')
     console.print(f'results: {out / "results.json"}')
+    return result
+
+
+def _run_sweep(
+    out: Path,
+    settings: EvaluationSettings,
+    sweeps: Sequence[str],
+    backend: Backend,
+    console: Console,
+) -> SweepResult:
+    """Every combination of the sweeps on `settings`' trials; the table and where it is."""
+    from rich.table import Table  # noqa: PLC0415
+
+    from scanfuse.evaluate import sweep  # noqa: PLC0415
+
+    axes = sweep.parse_sweeps(sweeps)
+    result = sweep.run_sweep(settings, axes, backend, RichProgress(console))
+    sweep.write_sweep(result, out)
+    table = Table('setting', 'method', 'recall', 'false obstacles', 'collisions', 'goals', 'trials')
+    for row in result.rows():
+        table.add_row(
+            sweep.setting_label(row.setting),
+            row.method,
+            f'{100 * row.recall:.1f} %',
+            f'{100 * row.false_obstacle_rate:.1f} %',
+            f'{row.collisions:g}',
+            f'{row.reached:g}',
+            str(row.trials),
+        )
+    console.print(table)
+    if isinstance(backend, RayCluster):
+        console.print(
+            f'{backend.describe()}: {result.retried} trial(s) retried after a worker died'
+        )
+    console.print(f'comparison: {out / "sweep.md"}, {out / "sweep.json"}, {out / "sweep.png"}')
     return result
