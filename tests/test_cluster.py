@@ -1,5 +1,5 @@
-"""`scanfuse evaluate --cluster`: every trial a task on a real Ray cluster on 127.0.0.1 (a head
-with one worker process), merged as the serial run merges them; a worker killed mid-run."""
+"""`--cluster`: every trial (or bag) a task on a real Ray cluster on 127.0.0.1 (a head with one
+worker process), merged as the serial run merges them; a worker killed mid-run; a batch of bags."""
 
 from __future__ import annotations
 
@@ -12,9 +12,13 @@ import ray.cloudpickle
 
 from scanfuse.cli import main
 from scanfuse.cluster import LocalPool, RayCluster, backend_of, run_tasks
+from scanfuse.config import FusionConfig
 from scanfuse.errors import ClusterError, ConfigError
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
+from scanfuse.ros.bag import fuse_bag
+from scanfuse.ros.batch import BagOptions, fuse_bags, input_digest
 from tests.support import ray_cluster
+from tests.support.bag_batch import bag_folder, messages
 from tests.support.ray_cluster import dying_job, ray_head
 
 if TYPE_CHECKING:
@@ -97,3 +101,17 @@ def test_backend_options_are_checked():
         backend_of(1, ' ')
     with pytest.raises(ConfigError, match='--max-retries must be zero or more'):
         backend_of(1, 'local', -1)
+
+
+def test_a_batch_of_bags_on_the_cluster(head, tmp_path):
+    good, other, broken = bag_folder(tmp_path / 'in')
+    before = {bag: input_digest(bag) for bag in (good, other, broken)}
+    report = fuse_bags(
+        tmp_path / 'in', tmp_path / 'out', BagOptions(FusionConfig()), RayCluster(head)
+    )
+    assert [o.input for o in report.failed] == [broken]
+    assert report.retried == 0
+    for bag in (good, other):
+        single = fuse_bag(bag, tmp_path / f'single-{bag.name}')
+        assert messages(tmp_path / 'out' / bag.name) == messages(single.output)
+    assert {bag: input_digest(bag) for bag in before} == before

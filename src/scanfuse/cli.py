@@ -26,6 +26,8 @@ if TYPE_CHECKING:
     from collections.abc import Iterator
     from types import FrameType
 
+    from scanfuse.ros.batch import BagOptions
+
 app = typer.Typer(
     name='scanfuse',
     help='Depth camera + 2D LiDAR fusion for ROS 2.',
@@ -105,13 +107,40 @@ def bag(
     require_tf: Annotated[
         bool, typer.Option('--require-tf', help='fail unless /tf_static gives the extrinsics')
     ] = False,
+    jobs: Annotated[
+        int, typer.Option('--jobs', help='many bags: bags fused in parallel processes')
+    ] = 1,
+    cluster: Annotated[
+        str | None,
+        typer.Option(
+            '--cluster',
+            help='many bags: one task per bag on a Ray cluster, HOST:PORT of its head, auto, or '
+            "local (pip install 'scanfuse[cluster]')",
+        ),
+    ] = None,
+    max_retries: Annotated[
+        int | None,
+        typer.Option('--max-retries', help='with --cluster: runs again of a bag whose worker died'),
+    ] = None,
 ) -> None:
-    """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth."""
+    """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth.
+
+    INPUT may name many bags: a folder of bags or a quoted glob ('runs/*.mcap'); OUTPUT is
+    then a folder that gets one fused bag per input, and a table lists every bag (a failed
+    one with its error; the others go on).
+    """
     from scanfuse.config import FusionConfig  # noqa: PLC0415
     from scanfuse.progress import RichProgress  # noqa: PLC0415
     from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
+    from scanfuse.ros.batch import BagOptions, is_batch  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
+    if is_batch(input_bag):
+        options = BagOptions(
+            config, scan, depth, camera_info, storage, overwrite, not no_depth_scan, require_tf
+        )
+        _fuse_many(input_bag, output, options, jobs, cluster, max_retries)
+        return
     with terminate_as_interrupt():
         report = fuse_bag(
             input_bag,
@@ -127,6 +156,31 @@ def bag(
             progress=RichProgress(unit='messages'),
         )
     Console().print(report.table())
+
+
+def _fuse_many(
+    source: Path,
+    out: Path,
+    options: BagOptions,
+    jobs: int,
+    cluster: str | None,
+    max_retries: int | None,
+) -> None:
+    from scanfuse.cluster import backend_of  # noqa: PLC0415
+    from scanfuse.errors import BagError  # noqa: PLC0415
+    from scanfuse.progress import RichProgress  # noqa: PLC0415
+    from scanfuse.ros.batch import fuse_bags  # noqa: PLC0415
+
+    backend = backend_of(jobs, cluster, max_retries)
+    with terminate_as_interrupt():
+        report = fuse_bags(source, out, options, backend, RichProgress(unit='bags'))
+    Console().print(report.table())
+    if report.retried:
+        Console().print(f'{report.retried} bag run(s) repeated after a worker died')
+    if report.failed:
+        names = ', '.join(str(outcome.input) for outcome in report.failed)
+        msg = f'{len(report.failed)} of {len(report.outcomes)} bags failed: {names} (see the table)'
+        raise BagError(msg)
 
 
 @app.command()

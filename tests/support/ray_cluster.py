@@ -5,6 +5,7 @@ stop every Ray cluster of the machine); and a task that kills its own worker onc
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -69,6 +70,7 @@ def ray_head(num_cpus: int = 1) -> Iterator[str]:
         yield address
     finally:
         _stop(head)
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def _stop(head: subprocess.Popen[bytes]) -> None:
