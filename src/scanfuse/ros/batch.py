@@ -168,20 +168,25 @@ class BatchReport:
         return [outcome for outcome in self.outcomes if not outcome.ok]
 
     def table(self) -> Table:
+        from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        table = Table('input', 'output', 'messages', 'fused scans', 'seconds', title='bags')
+        folders = {str(o.input.parent) for o in self.outcomes}
+        outs = {str(o.output.parent) for o in self.outcomes}
+        title = f'bags: {", ".join(sorted(folders))} -> {", ".join(sorted(outs))}'
+        table = Table('input', 'output', 'messages', 'fused scans', 'seconds', title=title)
         for outcome in self.outcomes:
             if outcome.ok:
                 table.add_row(
-                    str(outcome.input),
-                    str(outcome.output),
+                    outcome.input.name,
+                    outcome.output.name,
                     str(outcome.messages_written),
                     str(outcome.scans_fused),
                     f'{outcome.wall_time_s:.1f}',
                 )
             else:
-                table.add_row(str(outcome.input), f'[red]failed: {outcome.error}[/red]', '', '', '')
+                error = escape(f'failed: {outcome.error}')
+                table.add_row(outcome.input.name, f'[red]{error}[/red]', '', '', '')
         return table
 
 
