@@ -415,13 +415,13 @@ def _profile(
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it. But from
-                # the camera's foot to the first floor it sees, it may rise the whole run: a
-                # ramp that starts under the robot's front rises all the way.
-                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
-                rise = tan_slope * centre if at == 0.0 else reach
+                # the camera's foot to the first floor it sees, the whole run: a ramp that
+                # starts under the robot's front rises (or falls) all the way.
+                run = centre - at if at == 0.0 else min(max(centre - at, 0.0), bin_size)
+                reach = tan_slope * run
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
-                top = ground if above >= max(2, found // 4) else ground + rise
+                top = ground if above >= max(2, found // 4) else ground + reach
                 bottom = ground if below >= max(2, found // 4) else ground - reach
                 ground = min(max(total / found, bottom), top)
                 at = centre
