@@ -15,6 +15,7 @@ from scanfuse.cluster import LocalPool, RayCluster, backend_of, run_tasks
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ClusterError, ConfigError
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
+from scanfuse.evaluate.sweep import parse_sweeps, run_sweep
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.batch import BagOptions, fuse_bags, input_digest
 from tests.support import ray_cluster
@@ -115,3 +116,11 @@ def test_a_batch_of_bags_on_the_cluster(head, tmp_path):
         single = fuse_bag(bag, tmp_path / f'single-{bag.name}')
         assert messages(tmp_path / 'out' / bag.name) == messages(single.output)
     assert {bag: input_digest(bag) for bag in before} == before
+
+
+def test_a_sweep_on_the_cluster_gives_the_local_sweep(head):
+    axes = parse_sweeps(['min_obstacle_height=0.03,0.06'])
+    local = run_sweep(tiny(), axes, LocalPool(1))
+    remote = run_sweep(tiny(), axes, RayCluster(head))
+    assert remote.settings == local.settings
+    assert [r.to_json() for r in remote.results] == [r.to_json() for r in local.results]

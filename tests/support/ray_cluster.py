@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
     from scanfuse.evaluate.runner import EvaluationPart, EvaluationSettings, Job
 
-START_TIMEOUT = 120.0
+START_TIMEOUT = 240.0
 
 
 def _free_port() -> int:
@@ -37,20 +37,22 @@ def ray_head(num_cpus: int = 1) -> Iterator[str]:
     ray = Path(sys.executable).parent / 'ray'
     port = _free_port()
     temp = tempfile.mkdtemp(prefix='sfray', dir='/tmp')  # short: Ray's sockets live there
-    env = {**os.environ, 'RAY_USAGE_STATS_ENABLED': '0'}
+    env = {**os.environ, 'RAY_USAGE_STATS_ENABLED': '0', 'RAY_AUTH_MODE': 'disabled'}
     command = [
         str(ray), 'start', '--head', '--block',
         '--node-ip-address', '127.0.0.1', '--port', str(port),
         '--num-cpus', str(num_cpus), '--num-gpus', '0',
         '--include-dashboard', 'false', '--disable-usage-stats', '--temp-dir', temp,
     ]  # fmt: skip
-    head = subprocess.Popen(
-        command,
-        env=env,
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    log = Path(temp) / 'head.log'
+    with log.open('wb') as output:
+        head = subprocess.Popen(
+            command,
+            env=env,
+            start_new_session=True,
+            stdout=output,
+            stderr=subprocess.STDOUT,
+        )
     address = f'127.0.0.1:{port}'
     try:
         deadline = time.monotonic() + START_TIMEOUT
@@ -64,7 +66,9 @@ def ray_head(num_cpus: int = 1) -> Iterator[str]:
             if status.returncode == 0:
                 break
             if head.poll() is not None or time.monotonic() > deadline:
-                msg = f'the Ray head on {address} did not start'
+                why = 'exited' if head.poll() is not None else f'not up in {START_TIMEOUT} s'
+                said = log.read_text(encoding='utf-8', errors='replace')[-3000:]
+                msg = f'the Ray head on {address} did not start ({why}): {said} {status.stderr!r}'
                 raise RuntimeError(msg)
             time.sleep(1.0)
         yield address
