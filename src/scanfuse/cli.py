@@ -129,6 +129,54 @@ def bag(
     Console().print(report.table())
 
 
+LISTEN_DEFAULT = '/scan_fused'
+
+
+@app.command()
+def play(
+    input_bag: Annotated[
+        Path,
+        typer.Argument(metavar='BAG', help='ROS 2 bag (folder, .db3, .mcap) or ROS 1 .bag'),
+    ],
+    rate: Annotated[float, typer.Option(help='speed: 2 plays twice as fast')] = 1.0,
+    loop: Annotated[bool, typer.Option('--loop', help='play again and again until Ctrl-C')] = False,
+    topic: Annotated[
+        list[str] | None, typer.Option('--topic', help='play only this topic (repeatable)')
+    ] = None,
+    start: Annotated[float, typer.Option(help='start this many seconds into the bag')] = 0.0,
+    listen: Annotated[
+        bool,
+        typer.Option(
+            '--listen',
+            help=f'wait for the node, then count what it publishes on {LISTEN_DEFAULT} '
+            '(rate, latency) and print it at the end',
+        ),
+    ] = False,
+    listen_to: Annotated[
+        list[str] | None,
+        typer.Option('--listen-to', help='listen to this topic instead (repeatable)'),
+    ] = None,
+    wait: Annotated[float, typer.Option(help='seconds to wait for the node with --listen')] = 30.0,
+) -> None:
+    """Publish a recording on ROS 2 topics at its recorded pace, each with its recorded QoS."""
+    try:
+        from scanfuse.ros.play import PlayOptions, play_bag  # noqa: PLC0415
+    except ModuleNotFoundError as err:
+        missing = (err.name or '').partition('.')[0]
+        if not ROS_MODULE.fullmatch(missing):
+            raise
+        report_error(f'{missing} is not installed; play needs ROS 2 for Python: {ROS_WAYS}')
+        raise typer.Exit(1) from None
+    listened = list(listen_to or ([LISTEN_DEFAULT] if listen else []))
+    options = PlayOptions(
+        rate=rate, loop=loop, topics=tuple(topic or ()), start=start, listen=listened, wait=wait
+    )
+    with terminate_as_interrupt():
+        report = play_bag(input_bag, options, say=lambda line: console.print(escape(line)))
+    for line in report.lines():
+        typer.echo(line)
+
+
 @app.command()
 def calibrate(
     input_bag: Annotated[

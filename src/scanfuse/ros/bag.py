@@ -577,52 +577,19 @@ class MalformedMessage:
         return f'{self.where}: {self.reason}'
 
 
-@dataclass(frozen=True)
-class _Lidar:
-    """What the stream hands back with a scan: its CDR and log time."""
+class CdrConverter:
+    """A bag's messages as ROS 2 CDR: unchanged for ROS 2 bags, converted for ROS 1."""
 
-    raw: bytes
-    log_time: int
-
-
-class _BagJob:
-    """One run of `fuse_bag` over an open reader."""
-
-    def __init__(
-        self, reader: AnyReader, config: FusionConfig, distro: Distro, *, write_depth_scan: bool
-    ) -> None:
+    def __init__(self, reader: AnyReader, store: Typestore) -> None:
         self.reader = reader
-        self.config = config
-        self.write_depth_scan = write_depth_scan
-        self.source = Path(str(reader.paths[0]))
-        # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
-        self.store = reader.typestore if reader.is2 else _fresh_store(distro)
-        self.topics_types = {
-            name: info.msgtype or '?'
-            for name, info in _guard_read(self.source, lambda: reader.topics).items()
-        }
-        self.duration_ns = reader.duration if reader.message_count else 0
+        self.store = store  # ROS 2 types; ROS 1 types ROS 2 lacks are registered into it
         self.converters: dict[str, Callable[[bytes], bytes]] = {}
-        self.choice: TopicChoice | None = None
-        self.first_camera: CameraModel | None = None
-        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
-        # or until no frame logged up to REORDER_S late can still be near enough.
-        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
-        self.stream: FusionStream[_Lidar] = FusionStream(
-            config, pair_wait=pair_wait, release_when_silent=False
-        )
-        self.scan_frame = ''
-        self.depth_frame = ''
-        # The message being handled, so errors can name it (see `_located`).
-        self.position: MessagePosition | None = None
-
-    # ------------------------------------------------------------ reading helpers
 
     def msgtype(self, connection: Connection) -> str:
+        """The ROS 2 name of the connection's type (ROS 1's tf/tfMessage is tf2_msgs')."""
         return STATIC_MSGTYPE_RENAMES.get(connection.msgtype, connection.msgtype)
 
     def to_cdr(self, connection: Connection, raw: bytes) -> bytes:
-        """The message as ROS 2 CDR: unchanged for ROS 2 bags, converted for ROS 1."""
         if self.reader.is2:
             return raw
         convert = self.converters.get(connection.msgtype)
@@ -648,6 +615,63 @@ class _BagJob:
             return lambda raw: bytes(self.store.ros1_to_cdr(raw, dst_type))
         migrate = partial(migrate_bytes, self.reader.typestore, self.store, src_type, dst_type, {})
         return lambda raw: bytes(migrate(raw, src_is2=False, dst_is2=True))
+
+
+def open_bag(source: Path, distro: Distro = Distro.HUMBLE) -> _ReaderScope:
+    """`AnyReader` over `source` as a context; a damaged bag's failure is a BagError."""
+    return _ReaderScope(source, distro)
+
+
+def fresh_store(distro: Distro = Distro.HUMBLE) -> Typestore:
+    return _fresh_store(distro)
+
+
+@dataclass(frozen=True)
+class _Lidar:
+    """What the stream hands back with a scan: its CDR and log time."""
+
+    raw: bytes
+    log_time: int
+
+
+class _BagJob:
+    """One run of `fuse_bag` over an open reader."""
+
+    def __init__(
+        self, reader: AnyReader, config: FusionConfig, distro: Distro, *, write_depth_scan: bool
+    ) -> None:
+        self.reader = reader
+        self.config = config
+        self.write_depth_scan = write_depth_scan
+        self.source = Path(str(reader.paths[0]))
+        # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
+        self.store = reader.typestore if reader.is2 else _fresh_store(distro)
+        self.cdr = CdrConverter(reader, self.store)
+        self.topics_types = {
+            name: info.msgtype or '?'
+            for name, info in _guard_read(self.source, lambda: reader.topics).items()
+        }
+        self.duration_ns = reader.duration if reader.message_count else 0
+        self.choice: TopicChoice | None = None
+        self.first_camera: CameraModel | None = None
+        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
+        # or until no frame logged up to REORDER_S late can still be near enough.
+        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
+        self.stream: FusionStream[_Lidar] = FusionStream(
+            config, pair_wait=pair_wait, release_when_silent=False
+        )
+        self.scan_frame = ''
+        self.depth_frame = ''
+        # The message being handled, so errors can name it (see `_located`).
+        self.position: MessagePosition | None = None
+
+    # ------------------------------------------------------------ reading helpers
+
+    def msgtype(self, connection: Connection) -> str:
+        return self.cdr.msgtype(connection)
+
+    def to_cdr(self, connection: Connection, raw: bytes) -> bytes:
+        return self.cdr.to_cdr(connection, raw)
 
     def decode(self, connection: Connection, raw: bytes) -> Any:
         return deserialize(self.to_cdr(connection, raw), self.msgtype(connection), self.store)
