@@ -341,3 +341,20 @@ def test_a_tf_loop_is_a_malformed_transform_and_no_scan_is_lost():
     stream.add_depth(NS, flat_depth(), NS)
     outs = stream.add_scan(lidar_scan(NS), 1, NS + 1) + stream.finish()
     assert [o.token for o in outs] == [1]
+
+
+def test_the_extrinsics_reported_follow_tf_that_arrives_after_the_first_choice():
+    # The node chooses extrinsics when CameraInfo arrives; /tf_static may come later. What
+    # it reports must then name the TF it has, not "TF has neither sensor frame".
+    from scanfuse.ros.messages import transforms_from_cdr
+    from tests.support.synthetic import Scene, scene_messages
+
+    (tf_static,) = [raw for topic, _, _, raw in scene_messages(Scene()) if topic == '/tf_static']
+    stream: FusionStream[int] = FusionStream(FusionConfig())
+    stream.extrinsics_for('laser', 'camera_depth_optical_frame')
+    assert stream.extrinsics_source == (
+        'parameters (TF has neither sensor frame: '
+        'no laser or camera_depth_optical_frame on /tf_static or /tf yet)'
+    )
+    stream.add_transforms(transforms_from_cdr(tf_static), static=True)
+    assert stream.extrinsics_source == 'TF (base_link -> laser, camera_depth_optical_frame)'

@@ -239,6 +239,7 @@ class FusionStream(Generic[T]):
         self._newest_scan_ns: int | None = None
         self._warned: set[str] = set()
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
+        self._extrinsics_key: tuple[str, str] | None = None  # the pair chosen last
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
         self.imu = ImuHistory()
@@ -536,6 +537,10 @@ class FusionStream(Generic[T]):
             ]
             for key in stale:
                 del self._extrinsics[key]
+            if self._extrinsics_key in stale:
+                # What the node reports must not name a TF tree that has changed since
+                # (a choice made before /tf_static arrived said "TF has neither frame").
+                self.extrinsics_for(*self._extrinsics_key)
 
     def tick(self, now_ns: int) -> list[StreamOutput[T]]:
         """Scans whose wait is over by `now_ns`."""
@@ -989,6 +994,7 @@ class FusionStream(Generic[T]):
         if choice is None:
             choice = self._extrinsics[key] = self._choose_extrinsics(*key)
         self.extrinsics_source = choice.source
+        self._extrinsics_key = key
         return choice
 
     def _choose_extrinsics(self, laser: str, camera: str) -> ExtrinsicsChoice:
@@ -996,7 +1002,10 @@ class FusionStream(Generic[T]):
             return ExtrinsicsChoice(self._parameters, 'parameters (use_tf is false)')
         known = set(self.tf.frames)
         if laser not in known and camera not in known:
-            return ExtrinsicsChoice(self._parameters, 'parameters (TF has neither sensor frame)')
+            missing = f'no {laser} or {camera} on /tf_static or /tf yet'
+            return ExtrinsicsChoice(
+                self._parameters, f'parameters (TF has neither sensor frame: {missing})'
+            )
         base = frame_name(self.config.base_frame)
         try:
             extrinsics = Extrinsics(

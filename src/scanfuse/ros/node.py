@@ -54,8 +54,9 @@ from rclpy.utilities import ok, remove_ros_args
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, PointCloud2
 
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
-from scanfuse.errors import ScanfuseError
-from scanfuse.ros.live import LiveFusion
+from scanfuse.errors import ConfigError, ScanfuseError
+from scanfuse.ros.graph import SilentInput, override_names, silent_inputs, unknown_names_message
+from scanfuse.ros.live import Level, LiveFusion
 from scanfuse.ros.live_view import (
     DEFAULT_HOST,
     DEFAULT_PORT,
@@ -63,6 +64,7 @@ from scanfuse.ros.live_view import (
     LiveView,
     make_view,
 )
+from scanfuse.ros.messages import CAMERA_INFO, IMAGE, LASER_SCAN
 from scanfuse.ros.params import (
     Kind,
     NodeSettings,
@@ -105,6 +107,8 @@ TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
 ODOMETRY_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
 )
+# An input with no publisher this long after start-up is reported (discovery takes seconds).
+SILENT_INPUT_GRACE_S = 5.0
 # Fire just after a deadline, so `now >= deadline` holds when the timer runs.
 DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
@@ -176,6 +180,7 @@ class ScanfuseNode:
         *,
         foxglove_port: int | None = None,
         foxglove_host: str = DEFAULT_HOST,
+        overrides: Sequence[str] = (),
     ) -> None:
         self.node = rclpy.create_node(NODE_NAME)
         self.rosout = self.node.get_logger()
@@ -183,6 +188,11 @@ class ScanfuseNode:
         for spec in self.specs.values():
             self.node.declare_parameter(spec.name, spec.default, descriptor(spec))
         self.specs.update(self._declare_sources(defaults))
+        # rclpy keeps a -p override of an undeclared name unused and says nothing; a typo in
+        # the parameter file is refused, so the same typo on the command line is too.
+        unknown = [name for name in overrides if not self.node.has_parameter(name)]
+        if unknown:
+            raise ConfigError(unknown_names_message(unknown, self.specs, 'given with -p'))
         values = self.parameter_values()
         config = config_from_ros(values)
         settings = settings_from_ros(values)
@@ -194,15 +204,27 @@ class ScanfuseNode:
         self.view: LiveView = make_view(config, foxglove_port, foxglove_host)
         self.node.add_on_set_parameters_callback(self._on_set_parameters)
         sensor_qos = qos_profile_sensor_data
-        self.node.create_subscription(
-            LaserScan, config.scan_topic, self._on_scan, sensor_qos, raw=True
+        inputs = (
+            (LaserScan, LASER_SCAN, 'scan_topic', config.scan_topic, self._on_scan),
+            (Image, IMAGE, 'depth_topic', config.depth_topic, self._on_depth),
+            (
+                CameraInfo,
+                CAMERA_INFO,
+                'camera_info_topic',
+                config.camera_info_topic,
+                self._on_camera_info,
+            ),
         )
-        self.node.create_subscription(
-            Image, config.depth_topic, self._on_depth, sensor_qos, raw=True
-        )
-        self.node.create_subscription(
-            CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
-        )
+        # Resolved names (after remapping) -> (type, parameter), watched for publishers.
+        self.inputs: dict[str, tuple[str, str]] = {}
+        for kind, msgtype, parameter, topic, callback in inputs:
+            subscription = self.node.create_subscription(
+                kind, topic, callback, sensor_qos, raw=True
+            )
+            self.inputs[subscription.topic_name] = (msgtype, parameter)
+        self.started = time.monotonic()
+        self.silent_since: dict[str, float] = {}
+        self.silent_reported: dict[str, str] = {}
         self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
         if config.imu_topic:
@@ -471,16 +493,47 @@ class ScanfuseNode:
     # ------------------------------------------------------------ diagnostics
 
     def _publish_diagnostics(self) -> None:
-        health = self.live.health(time.monotonic())
-        self.diagnostics_pub.publish(self.diagnostics_message(health))
+        now = time.monotonic()
+        health = self.live.health(now)
+        self.diagnostics_pub.publish(self.diagnostics_message(health, self.silent_inputs(now)))
 
-    def diagnostics_message(self, health: Health) -> Any:
+    def silent_inputs(self, now: float) -> list[SilentInput]:
+        """Inputs nothing has published for SILENT_INPUT_GRACE_S, each logged once (again when
+        what could stand in for it changes)."""
+        graph = self.node.get_topic_names_and_types()
+        publishers = {name: self.node.count_publishers(name) for name, _ in graph}
+        publishers.update({name: self.node.count_publishers(name) for name in self.inputs})
+        found = silent_inputs(self.inputs, publishers, graph)
+        silent = {item.topic for item in found}
+        self.silent_since = {topic: self.silent_since.get(topic, now) for topic in silent}
+        due = [
+            item
+            for item in found
+            if now - max(self.silent_since[item.topic], self.started) >= SILENT_INPUT_GRACE_S
+        ]
+        for item in due:
+            text = item.describe()
+            if self.silent_reported.get(item.topic) != text:
+                self.silent_reported[item.topic] = text
+                self.rosout.warning(text)
+        self.silent_reported = {
+            topic: text for topic, text in self.silent_reported.items() if topic in silent
+        }
+        return due
+
+    def diagnostics_message(self, health: Health, silent: Sequence[SilentInput] = ()) -> Any:
+        level, message, values = health.level, health.message, dict(health.values)
+        if silent:
+            # The missing publisher explains the rest (no CameraInfo, LiDAR passed through).
+            level = max(level, Level.WARN)
+            message = '; '.join(item.describe() for item in silent) + f' ({message})'
+            values.update({f'no publisher: {item.topic}': item.describe() for item in silent})
         status = DiagnosticStatus(
-            level=bytes([int(health.level)]),
+            level=bytes([int(level)]),
             name=f'{self.node.get_name()}: fusion',
-            message=health.message,
+            message=message,
             hardware_id=self.node.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=value) for key, value in health.values.items()],
+            values=[KeyValue(key=key, value=value) for key, value in values.items()],
         )
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.node.get_clock().now().to_msg()
@@ -565,6 +618,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 settings,
                 foxglove_port=options.foxglove,
                 foxglove_host=options.foxglove_host,
+                overrides=override_names(argv, NODE_NAME),
             )
         except _START_ERRORS as err:
             return _start_error(err)
