@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import logging
+import math
 import os
 import re
 import shutil
@@ -418,3 +419,49 @@ def test_node_without_tf2_msgs_warns_in_one_line_and_goes_on(tmp_path):
         with_tf2 = run_cli(site_without(tmp_path / 'all', set()), 'node', '--params-file', missing)
         assert with_tf2.returncode == 1
         assert not lines_with(with_tf2.stderr, 'tf2_msgs is not installed')
+
+
+def write_params(path: Path, **values: object) -> Path:
+    import yaml
+
+    path.write_text(yaml.safe_dump({'scanfuse': {'ros__parameters': values}}), encoding='utf-8')
+    return path
+
+
+def test_bag_takes_the_depth_topic_the_parameter_file_names(tmp_path, capsys):
+    # The scene's depth topic is /camera/depth/image_raw (tests/support/synthetic.py); a file
+    # for a RealSense names another, as the node would subscribe to it.
+    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
+    realsense = write_params(
+        tmp_path / 'realsense.yaml', depth_topic='/camera/camera/depth/image_rect_raw'
+    )
+    assert main(['bag', str(bag), str(tmp_path / 'out'), '--params', str(realsense)]) == 1
+    line = ' '.join(capsys.readouterr().err.split())
+    assert 'depth topic /camera/camera/depth/image_rect_raw is not in the bag' in line
+    assert f'[depth_topic in {realsense} (--depth overrides it)]' in line
+    # --depth overrides the file, as -r remaps the node's topic.
+    args = ['--params', str(realsense), '--depth', '/camera/depth/image_raw']
+    assert main(['bag', str(bag), str(tmp_path / 'out'), *args]) == 0
+
+
+def test_an_angle_in_degrees_is_refused_with_its_value_in_radians(tmp_path, capsys):
+    pitched = write_params(tmp_path / 'pitch.yaml', camera_pitch=20)
+    assert (
+        main(['bag', str(tmp_path / 'any.mcap'), str(tmp_path / 'out'), '--params', str(pitched)])
+        == 1
+    )
+    line = ' '.join(capsys.readouterr().err.split())
+    assert f'(radians: 20 deg = {math.radians(20):.3f})' in line
+    assert '(radians: 20 deg = 0.349)' in line
+
+
+def test_a_misspelled_parameter_in_a_file_names_the_nearest_one(tmp_path, capsys):
+    typo = write_params(tmp_path / 'typo.yaml', min_obstacle_heigth=0.08)
+    assert (
+        main(['bag', str(tmp_path / 'any.mcap'), str(tmp_path / 'out'), '--params', str(typo)]) == 1
+    )
+    line = ' '.join(capsys.readouterr().err.split())
+    assert (
+        'min_obstacle_heigth: Extra inputs are not permitted (did you mean min_obstacle_height?)'
+        in line
+    )

@@ -68,6 +68,35 @@ def terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+INPUT_TOPICS = ('scan_topic', 'depth_topic', 'camera_info_topic')
+
+
+def topics_named_in(params: Path | None) -> dict[str, str]:
+    """The input topics a parameter file names: binding for a bag as for the node (one file,
+    one meaning), unlike the defaults, which only break ties among a bag's topics."""
+    if params is None:
+        return {}
+    from scanfuse.config import read_ros_params  # noqa: PLC0415
+
+    values = read_ros_params(params)
+    return {name: values[name] for name in INPUT_TOPICS if isinstance(values.get(name), str)}
+
+
+@contextmanager
+def topics_from_file(params: Path | None, named: dict[str, str]) -> Iterator[None]:
+    """A bag error about a topic the parameter file named says where the name came from."""
+    try:
+        yield
+    except ScanfuseError as err:
+        culprits = [name for name, topic in named.items() if f'topic {topic} ' in str(err)]
+        if not culprits:
+            raise
+        flags = {'scan_topic': '--scan', 'depth_topic': '--depth'}
+        flags['camera_info_topic'] = '--camera-info'
+        where = ', '.join(f'{name} in {params} ({flags[name]} overrides it)' for name in culprits)
+        raise type(err)(f'{err} [{where}]') from err
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help='folder for the report, figures and bag')] = Path(
@@ -112,14 +141,15 @@ def bag(
     from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
-    with terminate_as_interrupt():
+    named = topics_named_in(params)
+    with terminate_as_interrupt(), topics_from_file(params, named):
         report = fuse_bag(
             input_bag,
             output,
             config=config,
-            scan_topic=scan,
-            depth_topic=depth,
-            camera_info_topic=camera_info,
+            scan_topic=scan or named.get('scan_topic'),
+            depth_topic=depth or named.get('depth_topic'),
+            camera_info_topic=camera_info or named.get('camera_info_topic'),
             storage=storage,
             overwrite=overwrite,
             write_depth_scan=not no_depth_scan,
@@ -204,9 +234,15 @@ def calibrate(
     from scanfuse.ros.calibration import calibrate_bag, save_calibration  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
-    found = calibrate_bag(
-        input_bag, config=config, scan_topic=scan, depth_topic=depth, camera_info_topic=camera_info
-    )
+    named = topics_named_in(params)
+    with topics_from_file(params, named):
+        found = calibrate_bag(
+            input_bag,
+            config=config,
+            scan_topic=scan or named.get('scan_topic'),
+            depth_topic=depth or named.get('depth_topic'),
+            camera_info_topic=camera_info or named.get('camera_info_topic'),
+        )
     output = Console()
     for table in found.tables():
         output.print(table)

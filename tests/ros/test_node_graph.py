@@ -234,3 +234,16 @@ def test_inputs_nobody_publishes_are_named_with_the_topics_that_exist(tmp_path):
     assert values['no publisher: /camera/depth/image_raw'] == expected[0]
     # The LiDAR is published: it is not among the silent inputs.
     assert 'no publisher: /scan' not in values
+
+
+def test_an_angle_in_degrees_on_the_command_line_is_refused_with_its_value_in_radians():
+    done = subprocess.run(
+        [*SCANFUSE, 'node', '--ros-args', '-p', 'camera_pitch:=20.0'],
+        env=ros_env(),
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
+    )
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert '(radians: 20 deg = 0.349)' in done.stderr

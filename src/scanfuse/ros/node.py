@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+import re
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -576,10 +578,25 @@ def _one_line(err: Exception) -> str:
     return text.split(', at /', 1)[0]  # rcl appends ", at /path/file.c:LINE" per frame
 
 
+_OUT_OF_RANGE = re.compile(r'Parameter (\w+) out of range.*value: (-?[\d.eE+-]+)')
+
+
+def _unit_hint(message: str) -> str:
+    """An angle out of range was most likely given in degrees: its value in radians."""
+    found = _OUT_OF_RANGE.search(message)
+    if found is None:
+        return ''
+    field = FusionConfig.model_fields.get(found.group(1))
+    if field is None or 'radians' not in (field.description or ''):
+        return ''
+    value = float(found.group(2))
+    return f' (radians: {value:g} deg = {math.radians(value):.3f})'
+
+
 def _start_error(err: Exception) -> int:
     if isinstance(err, ParameterException):
         # rclpy checks -p overrides against the descriptors' ranges and types at declaration.
-        hint = 'fix the -p override or the parameter file'
+        hint = 'fix the -p override or the parameter file' + _unit_hint(str(err))
     elif isinstance(err, NameValidationException):
         hint = 'fix the topic name in the -p override or the parameter file'
     elif isinstance(err, rclpy_implementation.RCLInvalidROSArgsError):
