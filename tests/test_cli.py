@@ -465,3 +465,38 @@ def test_a_misspelled_parameter_in_a_file_names_the_nearest_one(tmp_path, capsys
         'min_obstacle_heigth: Extra inputs are not permitted (did you mean min_obstacle_height?)'
         in line
     )
+
+
+def fused_scans(bag: Path) -> dict[int, bytes]:
+    from rosbags.highlevel import AnyReader
+
+    from scanfuse.ros.messages import scan_from_cdr
+
+    with AnyReader([bag]) as reader:
+        wanted = [c for c in reader.connections if c.topic == '/scan_fused']
+        return {scan_from_cdr(raw).stamp_ns: bytes(raw) for _, _, raw in reader.messages(wanted)}
+
+
+def test_a_bag_without_camera_info_fuses_with_the_intrinsics_given(tmp_path, capsys):
+    from tests.support.synthetic import scene_messages, write_bag
+
+    scene = Scene(duration=1.0)
+    everything = scene_messages(scene)
+    without_info = write_bag(
+        tmp_path / 'no_info.mcap',
+        [message for message in everything if message[0] != '/camera/depth/camera_info'],
+    )
+    assert main(['bag', str(without_info), str(tmp_path / 'refused')]) == 1
+    assert '--intrinsics FX FY CX CY' in ' '.join(capsys.readouterr().err.split())
+    # The scene's camera (tests/support/synthetic.py): its CameraInfo's K, typed in.
+    camera = scene.camera
+    given = [str(value) for value in (camera.fx, camera.fy, camera.cx, camera.cy)]
+    out = tmp_path / 'given'
+    assert (
+        main(['bag', str(without_info), str(out), '--intrinsics', *given, '--no-depth-scan']) == 0
+    )
+    with_info = write_bag(tmp_path / 'with_info.mcap', everything)
+    assert main(['bag', str(with_info), str(tmp_path / 'from_info'), '--no-depth-scan']) == 0
+    expected = fused_scans(tmp_path / 'from_info')
+    assert expected
+    assert fused_scans(out) == expected

@@ -134,11 +134,19 @@ def bag(
     require_tf: Annotated[
         bool, typer.Option('--require-tf', help='fail unless /tf_static gives the extrinsics')
     ] = False,
+    intrinsics: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option(
+            metavar='FX FY CX CY',
+            help="the depth camera's focal lengths and principal point, pixels (CameraInfo's "
+            "K), for a bag without CameraInfo; they replace the bag's",
+        ),
+    ] = None,
 ) -> None:
     """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth."""
     from scanfuse.config import FusionConfig  # noqa: PLC0415
     from scanfuse.progress import RichProgress  # noqa: PLC0415
-    from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
+    from scanfuse.ros.bag import Intrinsics, fuse_bag  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
     named = topics_named_in(params)
@@ -155,6 +163,7 @@ def bag(
             write_depth_scan=not no_depth_scan,
             require_tf=require_tf,
             progress=RichProgress(unit='messages'),
+            intrinsics=Intrinsics(*intrinsics) if intrinsics is not None else None,
         )
     Console().print(report.table())
 

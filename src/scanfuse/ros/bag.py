@@ -46,6 +46,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
+from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
 from scanfuse.extras import primary_camera_config
@@ -81,7 +82,6 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    from scanfuse.camera import CameraModel
     from scanfuse.stream import StreamOutput
 
 logger = logging.getLogger(__name__)
@@ -115,6 +115,22 @@ class Storage(str, Enum):
 
 
 _PLUGINS = {Storage.MCAP: StoragePlugin.MCAP, Storage.SQLITE3: StoragePlugin.SQLITE3}
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """A pinhole depth camera's focal lengths and principal point, pixels (CameraInfo's K)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def describe(self) -> str:
+        return f'fx {self.fx:g}, fy {self.fy:g}, cx {self.cx:g}, cy {self.cy:g}'
+
+
+GIVEN_INTRINSICS = '(intrinsics given)'
 
 
 @dataclass(frozen=True)
@@ -223,11 +239,13 @@ def fuse_bag(
     distro: Distro = Distro.HUMBLE,
     progress: Progress | None = None,
     strict: bool = False,
+    intrinsics: Intrinsics | None = None,
 ) -> BagReport:
     """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag.
 
     A malformed message is copied through when it can be, skipped by the fusion and listed in
-    the report; with `strict` it stops the run with an error naming it.
+    the report; with `strict` it stops the run with an error naming it. `intrinsics` stand
+    for the depth camera's CameraInfo (a bag recorded without it, or with a wrong one).
     """
     config = config or FusionConfig()
     source, target = Path(input), Path(output)
@@ -239,6 +257,7 @@ def fuse_bag(
     with Staging(target) as staging:
         with _open_reader(source, distro) as reader:
             job = _BagJob(reader, config, distro, write_depth_scan=write_depth_scan)
+            job.intrinsics = intrinsics
             with _located(job), _writing(target):
                 topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
                 job.read_static(require_tf=require_tf)
@@ -653,6 +672,7 @@ class _BagJob:
         }
         self.duration_ns = reader.duration if reader.message_count else 0
         self.choice: TopicChoice | None = None
+        self.intrinsics: Intrinsics | None = None
         self.first_camera: CameraModel | None = None
         # Bags are read in log-time order: a scan waits for the first frame stamped after it,
         # or until no frame logged up to REORDER_S late can still be near enough.
@@ -727,9 +747,12 @@ class _BagJob:
         depth_topic = self._choose_depth(depth, images, depth_topics)
         sibling = depth_topic.rsplit('/', 1)[0] + '/camera_info'
         info_default = sibling if sibling in self.topics_types else self.config.camera_info_topic
-        info_topic = self._choose(
-            camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
-        )
+        if self.intrinsics is not None and camera_info is None:
+            info_topic = GIVEN_INTRINSICS  # the bag's CameraInfo, if any, is not used
+        else:
+            info_topic = self._choose(
+                camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
+            )
         sources = self._named_sources()
         used = {scan_topic, depth_topic, info_topic, *(t for t, _, _ in sources)}
         sensor_types = {LASER_SCAN, POINT_CLOUD} | ({IMAGE} if depth_topics else set())
@@ -821,9 +844,14 @@ class _BagJob:
         if len(candidates) == 1:
             return next(iter(candidates))
         if not candidates:
+            instead = (
+                "; give the camera's intrinsics instead: --intrinsics FX FY CX CY"
+                if msgtype == CAMERA_INFO
+                else ''
+            )
             msg = (
                 f'no {kind} topic ({msgtype}) in bag {self.source}; '
-                f'topics: {describe_topics(self.topics_types)}'
+                f'topics: {describe_topics(self.topics_types)}{instead}'
             )
             raise BagError(msg)
         msg = (
@@ -868,19 +896,31 @@ class _BagJob:
     def read_static(self, *, require_tf: bool) -> None:
         """Read the first CameraInfo, the sensors' frames and TF; choose the extrinsics."""
         assert self.choice is not None
-        info = self.first_message(self.choice.camera_info)
-        if info is None:
-            msg = f'CameraInfo topic {self.choice.camera_info} has no messages; cannot fuse'
-            raise BagError(msg)
-        self.first_camera = camera_from_msg(info)
         scan = self.first_message(self.choice.scan)
         depth = self.first_message(self.choice.depth)
         if scan is None or depth is None:
             empty = self.choice.scan if scan is None else self.choice.depth
             msg = f'topic {empty} has no messages; cannot fuse'
             raise BagError(msg)
+        if self.intrinsics is not None:
+            given = self.intrinsics
+            self.first_camera = CameraModel.from_intrinsics(
+                int(depth.width), int(depth.height), given.fx, given.fy, given.cx, given.cy,
+                frame_id=str(depth.header.frame_id),
+            )  # fmt: skip
+            info_frame = ''
+        else:
+            info = self.first_message(self.choice.camera_info)
+            if info is None:
+                msg = (
+                    f'CameraInfo topic {self.choice.camera_info} has no messages; cannot fuse '
+                    "(give the camera's intrinsics instead: --intrinsics FX FY CX CY)"
+                )
+                raise BagError(msg)
+            self.first_camera = camera_from_msg(info)
+            info_frame = str(info.header.frame_id)
         self.scan_frame = frame_name(str(scan.header.frame_id))
-        self.depth_frame = frame_name(str(depth.header.frame_id) or info.header.frame_id)
+        self.depth_frame = frame_name(str(depth.header.frame_id) or info_frame)
         self._read_mounting()
         choice = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
         if choice.extrinsics is None:
