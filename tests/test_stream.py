@@ -358,3 +358,22 @@ def test_the_extrinsics_reported_follow_tf_that_arrives_after_the_first_choice()
     )
     stream.add_transforms(transforms_from_cdr(tf_static), static=True)
     assert stream.extrinsics_source == 'TF (base_link -> laser, camera_depth_optical_frame)'
+
+
+def test_on_output_receives_every_scan_whichever_call_released_it():
+    # The README's case: pair_wait 0.05 s and each frame 40 ms after its scan. add_scan
+    # returns nothing (the scan waits for a later frame); add_depth and finish release them.
+    received: list = []
+    stream: FusionStream[int] = FusionStream(config(), pair_wait=0.05, on_output=received.append)
+    stream.add_camera_info(CAMERA)
+    returned = []
+    ms = 1_000_000
+    for step in range(4):
+        stamp = T_SCAN + step * 100 * ms
+        returned += stream.add_scan(lidar_scan(stamp), step, stamp)
+        returned += stream.add_depth(stamp + 20 * ms, depth_seen_at(T_SCAN), stamp + 40 * ms)
+    returned += stream.finish()
+    assert [output.token for output in received] == [0, 1, 2, 3]
+    # What the calls returned is the same outputs, in the same order.
+    assert [output.token for output in returned] == [0, 1, 2, 3]
+    assert all(a is b for a, b in zip(received, returned, strict=True))

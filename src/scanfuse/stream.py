@@ -66,7 +66,7 @@ from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import Extrinsics, Transform
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Callable, Iterable
 
     import numpy.typing as npt
 
@@ -219,11 +219,19 @@ class FusionStream(Generic[T]):
     """Pairs, compensates and fuses; see the module docstring for every rule."""
 
     def __init__(
-        self, config: FusionConfig, *, pair_wait: float = 0.0, release_when_silent: bool = True
+        self,
+        config: FusionConfig,
+        *,
+        pair_wait: float = 0.0,
+        release_when_silent: bool = True,
+        on_output: Callable[[StreamOutput[T]], None] | None = None,
     ) -> None:
         """`pair_wait`: seconds a scan waits for a frame after it. `release_when_silent`:
         a silent camera ends the wait at once (live); a recording, where a late frame may
-        still come, waits the whole `pair_wait`."""
+        still come, waits the whole `pair_wait`. `on_output` is handed every scan that
+        leaves, whichever call released it (`add_scan`, `add_depth`, `tick`, `finish`...):
+        the one place to collect output that cannot miss any."""
+        self.on_output = on_output
         if not pair_wait >= 0.0:
             msg = f'pair_wait must be >= 0 s (math.inf: wait for the next frame), got {pair_wait}'
             raise InputError(msg)
@@ -622,6 +630,13 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ one scan
 
     def _settle(self, pending: _Pending[T]) -> StreamOutput[T]:
+        """Every output leaves through here: handed to `on_output` and returned."""
+        output = self._settle_one(pending)
+        if self.on_output is not None:
+            self.on_output(output)
+        return output
+
+    def _settle_one(self, pending: _Pending[T]) -> StreamOutput[T]:
         """`_resolve`; a scan whose arithmetic fails is counted as malformed and passes
         through alone, so the scans released with it still leave."""
         try:
