@@ -110,7 +110,9 @@ def summary_table(summary: RecordSummary, snapshot: Path | None) -> Table:
     table.add_row('simulated time', f'{summary.sim_time:.2f} s')
     table.add_row('wall time', f'{summary.wall_time:.2f} s')
     table.add_row('real-time factor', f'{summary.real_time_factor:.2f}')
-    table.add_row('robot-obstacle contacts', str(summary.contacts))
+    table.add_row('contact samples (robot touching an obstacle)', str(summary.contacts))
+    fell = 'no' if summary.fell_at is None else f'yes, {summary.fell_at:.2f} s into the drive'
+    table.add_row('robot fell (down a drop)', fell)
     table.add_row('final odometry error', f'{summary.final_odometry_error:.3f} m')
     if snapshot is not None:
         table.add_row('snapshot', str(snapshot))
