@@ -500,3 +500,34 @@ def test_a_bag_without_camera_info_fuses_with_the_intrinsics_given(tmp_path, cap
     expected = fused_scans(tmp_path / 'from_info')
     assert expected
     assert fused_scans(out) == expected
+
+
+def test_node_help_lists_the_foxglove_options(capsys):
+    from scanfuse.ros.live_view import DEFAULT_HOST, DEFAULT_PORT
+
+    assert main(['node', '--help']) == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    assert f'--foxglove [PORT]: serve a Foxglove live view on PORT (default {DEFAULT_PORT};' in text
+    assert f'--foxglove-host HOST: the address it listens on (default {DEFAULT_HOST}:' in text
+
+
+def test_a_bag_report_prints_as_a_table_within_80_columns(tmp_path):
+    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
+    report = fuse_bag(bag, tmp_path / 'out')
+    text = str(report.table())
+    assert f'scanfuse bag: {tmp_path / "out"}'[:40] in text.replace('\n', '')
+    assert 'object at 0x' not in text
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert 'messages read' in text
+
+
+def test_a_simulated_bag_does_not_suggest_fusing_its_ground_truth(tmp_path):
+    from tests.support.synthetic import scene_messages, write_bag
+
+    # The simulator writes the ground-truth scan beside the LiDAR's (/scan -> /scan_truth).
+    messages = scene_messages(Scene(duration=0.5))
+    truth = [('/scan_truth', kind, t, raw) for topic, kind, t, raw in messages if topic == '/scan']
+    bag = write_bag(tmp_path / 'sim.mcap', [*messages, *truth])
+    report = fuse_bag(bag, tmp_path / 'out')
+    assert report.topics.unused == ()
+    assert 'scan_truth' not in str(report.table())

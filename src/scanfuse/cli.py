@@ -415,7 +415,17 @@ def evaluate(
     )
 
 
-@app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})
+# The node parses these itself (scanfuse.ros.node); listed here so --help shows them.
+NODE_OPTIONS_HELP = (
+    '--foxglove [PORT]: serve a Foxglove live view on PORT (default 8765; 0: any free port). '
+    '--foxglove-host HOST: the address it listens on (default 127.0.0.1: this machine only).'
+)
+
+
+@app.command(
+    context_settings={'allow_extra_args': True, 'ignore_unknown_options': True},
+    epilog=NODE_OPTIONS_HELP,
+)
 def node(
     ctx: typer.Context,
     params_file: Annotated[

@@ -31,7 +31,6 @@ from typing import TYPE_CHECKING, Any
 import apsw
 import numpy as np
 import yaml
-from rich.table import Table
 from rosbags.convert.converter import (
     LATCH,
     STATIC_MSGTYPE_RENAMES,
@@ -75,6 +74,7 @@ from scanfuse.ros.messages import (
 )
 from scanfuse.ros.staging import STAGING_OVERHEAD, Staging, output_error
 from scanfuse.stream import FusionStream
+from scanfuse.tables import TextTable
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -115,6 +115,12 @@ class Storage(str, Enum):
 
 
 _PLUGINS = {Storage.MCAP: StoragePlugin.MCAP, Storage.SQLITE3: StoragePlugin.SQLITE3}
+
+
+# The simulator's ground truth beside a sensor (/scan_truth beside /scan, /ground_truth/...):
+# evaluation data a recording carries, never a sensor to fuse.
+def is_ground_truth(topic: str) -> bool:
+    return topic.endswith('_truth') or topic.startswith('/ground_truth/')
 
 
 @dataclass(frozen=True)
@@ -185,8 +191,8 @@ class BagReport:
         """Seconds of recording processed per second of wall time."""
         return self.bag_duration_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
-    def table(self) -> Table:
-        table = Table(title=f'scanfuse bag: {self.output}', show_header=False)
+    def table(self) -> TextTable:
+        table = TextTable(title=f'scanfuse bag: {self.output}', show_header=False)
         table.add_column('what')
         table.add_column('value', justify='right')
         rows = [
@@ -760,7 +766,10 @@ class _BagJob:
             sorted(
                 (name, t)
                 for name, t in self.topics_types.items()
-                if t in sensor_types and name not in used and (t != IMAGE or name in depth_topics)
+                if t in sensor_types
+                and name not in used
+                and (t != IMAGE or name in depth_topics)
+                and not is_ground_truth(name)
             )
         )
         imu_topic = self._choose_imu()
