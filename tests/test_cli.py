@@ -515,9 +515,12 @@ def test_a_bag_report_prints_as_a_table_within_80_columns(tmp_path):
     bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
     report = fuse_bag(bag, tmp_path / 'out')
     text = str(report.table())
-    assert f'scanfuse bag: {tmp_path / "out"}'[:40] in text.replace('\n', '')
+    assert 'scanfuse bag:' in text
     assert 'object at 0x' not in text
     assert max(len(line) for line in text.splitlines()) <= 80
+    # A long path wraps inside its cell instead of being cut off.
+    assert '...' not in text
+    assert '\u2026' not in text
     assert 'messages read' in text
 
 

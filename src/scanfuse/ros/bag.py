@@ -194,7 +194,7 @@ class BagReport:
     def table(self) -> TextTable:
         table = TextTable(title=f'scanfuse bag: {self.output}', show_header=False)
         table.add_column('what')
-        table.add_column('value', justify='right')
+        table.add_column('value', justify='right', overflow='fold')
         rows = [
             ('input', str(self.input)),
             ('topics', f'{self.topics.scan} + {self.topics.depth} ({self.topics.camera_info})'),
