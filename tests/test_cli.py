@@ -534,3 +534,28 @@ def test_a_simulated_bag_does_not_suggest_fusing_its_ground_truth(tmp_path):
     report = fuse_bag(bag, tmp_path / 'out')
     assert report.topics.unused == ()
     assert 'scan_truth' not in str(report.table())
+
+
+def test_one_parameter_file_names_the_topics_for_simulate_and_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    realsense = write_params(
+        tmp_path / 'robot.yaml',
+        scan_topic='/rplidar/scan',
+        depth_topic='/camera/camera/depth/image_rect_raw',
+        camera_info_topic='/camera/camera/depth/camera_info',
+    )
+    recording = tmp_path / 'drive.mcap'
+    simulate = ['simulate', '--out', str(recording), '--duration', '1', '--params', str(realsense)]
+    assert main([*simulate, '--resolution', '424x240', '--depth-backend', 'multiray']) == 0
+    with AnyReader([recording]) as reader:
+        topics = set(reader.topics)
+    assert {
+        '/rplidar/scan',
+        '/camera/camera/depth/image_rect_raw',
+        '/camera/camera/depth/camera_info',
+    } <= topics
+    assert '/camera/depth/image_raw' not in topics
+    fused = tmp_path / 'fused'
+    assert main(['bag', str(recording), str(fused), '--params', str(realsense)]) == 0
+    assert fused_scans(fused)

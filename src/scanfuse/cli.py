@@ -338,16 +338,21 @@ def simulate(
 ) -> None:
     """Simulate a robot in an indoor world and record its sensors and ground truth as a bag.
 
-    The mounting comes from --params (the same file the node and `scanfuse bag` read), then
-    the flags; radians throughout.
+    The mounting and the topics come from --params (the same file the node and `scanfuse
+    bag` read), then the flags; radians throughout.
     """
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     if depth_backend != 'multiray':
         choose_headless_gl()
-    from scanfuse.sim.cli import mounting_from_params, run_simulate  # noqa: PLC0415
+    from scanfuse.sim.cli import (  # noqa: PLC0415
+        mounting_from_params,
+        run_simulate,
+        topics_from_params,
+    )
 
     mounting = mounting_from_params(params) if params is not None else {}
+    topics = topics_from_params(params) if params is not None else {}
     flags = {'lidar_height': lidar_height, 'camera_height': camera_height}
     flags['camera_pitch'] = camera_pitch
     mounting.update({name: value for name, value in flags.items() if value is not None})
@@ -369,6 +374,7 @@ def simulate(
             mounting=mounting,
             console=Console(),
             robot=robot,
+            topics=topics,
         )
 
 
