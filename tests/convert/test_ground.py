@@ -336,3 +336,116 @@ def test_a_sudden_pitch_shows_no_floor_from_its_first_frame(pitch):
         (out,) = stream.add_scan(lidar_scan(stamp), index, stamp + 1)
         assert out.depth_scan is not None
         assert score(out.depth_scan) == (0.0, 1.0), index
+
+
+# Ramps met near the robot (issue 25): the plane is the floor the robot stands on, however
+# much of the view the ramp fills.
+NEAR_RAMPS = {
+    '1:12 up from 0.9 m': (0.9, 1.0 / 12.0),
+    '1:12 down from 0.9 m': (0.9, -1.0 / 12.0),
+    '1:8 up from 0.9 m': (0.9, 1.0 / 8.0),
+    '1:8 down from 0.9 m': (0.9, -1.0 / 8.0),
+}
+
+
+@pytest.mark.parametrize(('start', 'rise'), NEAR_RAMPS.values(), ids=NEAR_RAMPS.keys())
+def test_a_ramp_starting_near_the_robot_does_not_tilt_the_floor_plane(start, rise):
+    # The floor is first seen 0.34 m ahead (the view's lowest ray, 49.5 deg down from 0.4 m):
+    # the ramp fills the view from 0.56 m beyond that on.
+    depth = millimetres(slope_depth(CAMERA, optical_pose(), start=start, rise=rise))
+    prior = GroundPlane.of_mounting(optical_pose())
+    plane = GroundTracker(GroundSettings()).update(depth, CAMERA, prior)
+    assert math.degrees(plane.tilt_from(prior)) < 0.1
+    assert plane.offset == pytest.approx(prior.offset, abs=0.002)
+
+
+@pytest.mark.parametrize('rise', [1.0 / 12.0, 1.0 / 8.0], ids=['1:12', '1:8'])
+def test_a_ramp_from_under_the_robots_front_is_floor_and_the_box_on_it_an_obstacle(rise):
+    # The ramp's foot 0.2 m ahead: the camera sees no floor that is not ramp (a 1:8 ramp is
+    # 7.1 deg, beyond ground_max_tilt: no plane fits it, the profile climbs it from the
+    # first floor seen).
+    under = rise * (RAMP_BOX - 0.2)
+    box = (RAMP_BOX, RAMP_BOX + 0.3, -0.3, 0.3, under - 0.05, under + BOX_HEIGHT)
+    depth = millimetres(slope_depth(CAMERA, optical_pose(), start=0.2, rise=rise, boxes=[box]))
+    scan, _ = depth_scans([depth] * 2)
+    false, right = ramp_score(scan)
+    assert false <= 0.005
+    assert right >= 0.95
+
+
+def noisy(depth_m: np.ndarray, seed: int, sigma_per_m2: float = 0.01) -> np.ndarray:
+    """`depth_m` (metres, inf: none) with a D435's noise along the optical axis (sigma =
+    0.01 Z^2, the simulator's), in millimetres."""
+    rng = np.random.default_rng(seed)
+    noise = (
+        rng.standard_normal(depth_m.shape)
+        * sigma_per_m2
+        * np.where(np.isfinite(depth_m), depth_m, 0.0) ** 2
+    )
+    return millimetres(depth_m + noise)
+
+
+def test_noise_over_a_ramp_rising_ahead_costs_about_what_it_costs_over_a_flat_floor(
+    monkeypatch,
+):
+    # Noise moves a reading along its ray: short of a rising ramp it lands above lower
+    # ground, by up to twice as much as over a flat floor at 3 m. The slab's bottom is raised
+    # there by 3 sigma of that extra (ground.SLOPE_NOISE_SIGMAS). What noise costs over a
+    # flat floor in this 848x480 scene (about 9 % of the slots in view: single readings the
+    # k-nearest rule keeps, as it keeps a thin obstacle's) is the measure.
+    from scanfuse.convert import ground
+
+    def worst(depths: list[np.ndarray], score_of) -> tuple[float, float]:
+        scores = [score_of(depth_scans(depths[: index + 1])[0]) for index in range(3)]
+        return max(false for false, _ in scores), min(right for _, right in scores)
+
+    flat = box_depth(CAMERA, optical_pose(), [BOX])
+    flat_false, _ = worst([noisy(flat, seed) for seed in range(3)], score)
+    rise = 1.0 / 12.0
+    under = rise * (RAMP_BOX - RAMP_START)
+    box = (RAMP_BOX, RAMP_BOX + 0.3, -0.3, 0.3, under - 0.05, under + BOX_HEIGHT)
+    clean = slope_depth(CAMERA, optical_pose(), start=RAMP_START, rise=rise, boxes=[box])
+    ramp = [noisy(clean, seed) for seed in range(3)]
+    false, right = worst(ramp, ramp_score)
+    assert false <= 2.0 * flat_false
+    assert right >= 0.85
+    monkeypatch.setattr(ground, 'SLOPE_NOISE_SIGMAS', 0.0)
+    unraised, _ = worst(ramp, ramp_score)
+    assert false <= 0.6 * unraised
+
+
+def test_the_slope_margin_is_three_sigma_of_the_extra_noise_above_the_ramp():
+    from scanfuse.convert.ground_kernel import slope_margin
+
+    # A ray falling 0.1 m per metre of depth over ground rising 0.05 m per metre of depth,
+    # at a depth of noise 0.04 m: 0.04 * 0.05 = 2 mm of extra height above the ramp; the
+    # tables hold the ground where the ray crosses, so the lift is 2 mm * 0.1 / 0.15.
+    assert slope_margin(0.04, 0.05, -0.1) == pytest.approx(0.002 * 0.1 / 0.15)
+    assert slope_margin(0.04, 0.0, -0.1) == 0.0  # flat
+    assert slope_margin(0.04, -0.05, -0.1) == 0.0  # falling away: readings land lower
+    assert slope_margin(0.04, 0.05, 0.1) == 0.0  # a ray looking up
+    assert slope_margin(0.0, 0.05, -0.1) == 0.0  # no noise
+
+
+def test_the_fit_without_numba_gives_the_compiled_fits_plane():
+    from scanfuse.convert import ground_kernel
+    from scanfuse.convert.ground import GroundSample, _kernel_depth
+
+    depth = millimetres(box_depth(CAMERA, optical_pose(body_pitch=2.0), [BOX]))
+    prior = GroundPlane.of_mounting(optical_pose())
+    settings = GroundSettings()
+    sample = GroundSample.build(CAMERA, prior, settings.samples, settings.hypotheses)
+    flat, scale = _kernel_depth(depth)
+    results = []
+    for fit in (ground_kernel.fit, ground_kernel._fit):
+        out = np.empty(7)
+        fit(
+            flat, scale, sample.indices, sample.rays, np.array([*prior.normal, prior.offset]),
+            np.array([*prior.normal, prior.offset]), settings.max_offset, settings.max_tilt,
+            settings.reach, settings.inlier_distance, settings.depth_noise, sample.draws,
+            settings.min_points, settings.min_spread, out,
+        )  # fmt: skip
+        results.append(out)
+    compiled, plain = results
+    assert compiled[6] == ground_kernel.OK
+    np.testing.assert_allclose(plain, compiled, rtol=1e-9, atol=1e-12)

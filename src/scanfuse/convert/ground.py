@@ -9,8 +9,10 @@ the camera's optical frame, with the mounting's plane as the prior:
   the pixels that look below the horizon) is back-projected; only points that an
   admissible plane could hold are candidates: within `max_offset` + r sin(`max_tilt`) of
   the prior's plane, r their distance from the camera, at most `reach` metres away, and
-  within `ground_kernel.FIT_DEPTH` of where the floor is first seen (the floor the robot
-  stands on, not a ramp farther ahead: that is the profile's);
+  within `ground_kernel.FIT_RUN_LONG` (horizontally) of where the floor is first seen; the
+  plane of that run is kept where it agrees with the plane of the first
+  `ground_kernel.FIT_RUN` metres, else the latter's (the floor the robot stands on, not a
+  ramp's foot or a crest ahead: that is the profile's);
 - RANSAC over those candidates (hypotheses: the prior, the last estimate and random
   triples; seeded, so a frame gives the same plane every time) keeps the admissible plane
   (normal within `max_tilt` of the prior's, offset within `max_offset`) with the best score:
@@ -269,6 +271,10 @@ PROFILE_BIN = 0.15
 # foot make no profile, and the tables stay).
 PROFILE_DEADBAND = 0.02
 PROFILE_EVIDENCE = 3
+# Noise sigmas by which the slab's bottom is raised over a ramp rising away from the camera
+# (by the extra its noise lifts readings there: `ground_kernel.slope_margin`). With the
+# default depth_noise a 1:12 ramp raises it by 1 cm at 2 m, 2.3 cm at 3 m.
+SLOPE_NOISE_SIGMAS = 3.0
 # The ground under the lines of sight (`GroundProfile.ground_under`) is found for every
 # LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row, each standing for its block.
 LIFT_STRIDE = 2
@@ -287,6 +293,9 @@ class GroundProfile:
     columns: npt.NDArray[np.int64]
     heights: F64  # columns x bins, metres above the plane
     bin_size: float
+    # Depth noise (sigma = depth_noise Z^2) times `SLOPE_NOISE_SIGMAS`: how far a rising
+    # ramp's noisy readings reach above it (`ground_kernel.slope_margin`); 0: no margin.
+    noise_margin: float = 0.0
     # `ground_under`'s answers: the projector and the memory ask the same of one frame.
     _lifts: dict[tuple[CameraModel, float, tuple[float, ...]], F64] = field(
         default_factory=dict, repr=False
@@ -313,7 +322,8 @@ class GroundProfile:
         ground_kernel.crossings(
             x_n.ravel(), y_n.ravel(), x_n.shape[1], LIFT_STRIDE,
             np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
-            self.heights, self.bin_size, far, np.array(levels, dtype=np.float64), coarse,
+            self.heights, self.bin_size, far, np.array(levels, dtype=np.float64),
+            self.noise_margin, coarse,
         )  # fmt: skip
         fine = coarse.reshape(len(levels), *x_n.shape)
         fine = np.repeat(np.repeat(fine, LIFT_STRIDE, axis=1), LIFT_STRIDE, axis=2)
@@ -376,7 +386,13 @@ def ground_profile(
     )  # fmt: skip
     if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None
-    return GroundProfile(plane=plane, columns=columns, heights=heights, bin_size=PROFILE_BIN)
+    return GroundProfile(
+        plane=plane,
+        columns=columns,
+        heights=heights,
+        bin_size=PROFILE_BIN,
+        noise_margin=SLOPE_NOISE_SIGMAS * settings.depth_noise,
+    )
 
 
 # The mount check: over this many frames whose floor was found, a mean disagreement beyond

@@ -22,9 +22,14 @@ from scanfuse.compiled import compiled
 
 # `fit` writes its result into `out`: normal (3), offset, inlier count, least spread, status.
 OK, FEW_CANDIDATES, FEW_INLIERS, ALONG_A_LINE, OUT_OF_BOUNDS = 0, 1, 2, 3, 4
-# The plane is fitted to the floor candidates within FIT_DEPTH metres (from the camera)
-# beyond the NEAREST_SHARE quantile of their distances.
-FIT_DEPTH = 1.0
+# The plane is fitted to the floor candidates within FIT_RUN_LONG metres (horizontally from
+# the camera) beyond the NEAREST_SHARE quantile of their runs, and within FIT_RUN.
+FIT_RUN = 0.5
+FIT_RUN_LONG = 1.25
+# The long run's plane is kept when it is within BEND radians and BEND_OFFSET metres of the
+# short run's: the floor is one plane that far.
+BEND = math.radians(1.0)
+BEND_OFFSET = 0.01
 NEAREST_SHARE = 0.05
 # Hypotheses are scored on every SCORE_STRIDE-th candidate; the refinement uses them all.
 SCORE_STRIDE = 2
@@ -33,6 +38,8 @@ ABOVE = 0.003
 # Metres above the steepest floor's rise (beyond 3 sigma of noise) a point of an obstacle's
 # face stands in the profile's walk: clear of a noisy ramp's own points.
 FACE = 0.01
+# Sampled columns either side a profile bin without ground looks for one that saw it.
+FILL_COLUMNS = 2
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -52,15 +59,19 @@ def _determinant(m: Any) -> float:
     return value
 
 
-def _refine(points: Any, tolerance: Any, noise: Any, count: int, plane: Any, out: Any) -> int:
+def _refine(
+    points: Any, tolerance: Any, noise: Any, count: int, plane: Any, out: Any, lowest: bool
+) -> int:
     """Least squares on the inliers of `plane` (normal, offset): the refined plane into
     `plane`, the least spread of the inliers along the plane's axes into out[5]; returns the
     number of inliers.
 
-    An inlier lies at most its `tolerance` below the plane but only its depth noise
-    (`noise`, 3 sigma) plus `ABOVE` above it: the floor is the lowest surface, and a slope
-    or an obstacle's foot that rises out of it would otherwise tilt the fit towards itself
-    a little more with every refinement."""
+    An inlier lies at most its `tolerance` below the plane and, with `lowest`, only its
+    depth noise (`noise`, 3 sigma) plus `ABOVE` above it: the floor is the lowest surface,
+    and a slope or an obstacle's foot that rises out of it would otherwise tilt the fit
+    towards itself a little more with every refinement. Without, as far above as below:
+    the first refinement of a hypothesis (the prior, say) that is a few centimetres off the
+    floor everywhere."""
     normal = plane[:3].copy()
     first, second = axes(normal)
     # Normal equations of h = a + b u + c v, and the (u, v) moments for the spread.
@@ -70,7 +81,7 @@ def _refine(points: Any, tolerance: Any, noise: Any, count: int, plane: Any, out
     for i in range(count):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         h = normal[0] * x + normal[1] * y + normal[2] * z + plane[3]
-        if h < -tolerance[i] or h > noise[i] + ABOVE:
+        if h < -tolerance[i] or h > (noise[i] + ABOVE if lowest else tolerance[i]):
             continue
         u = first[0] * x + first[1] * y + first[2] * z
         v = second[0] * x + second[1] * y + second[2] * z
@@ -140,7 +151,7 @@ def _fit(
     tolerance = np.empty(size)
     noise_band = np.empty(size)
     distances = np.empty(size)
-    sin_tilt, cos_tilt = math.sin(max_tilt), math.cos(max_tilt)
+    sin_tilt = math.sin(max_tilt)
     count = 0
     for i in range(size):
         index = indices[i]
@@ -163,21 +174,68 @@ def _fit(
         points[count, 0], points[count, 1], points[count, 2] = x, y, z
         tolerance[count] = allowed
         noise_band[count] = spread
-        distances[count] = distance
+        drop = height - prior[3]  # below the camera, along the prior's normal
+        distances[count] = math.sqrt(max(distance * distance - drop * drop, 0.0))
         count += 1
-    if count > 0:
-        # The floor where the robot stands: FIT_DEPTH metres from where it is first seen
-        # (a low percentile of the candidates' distances, clear of a stray near point). A
-        # ramp farther ahead is the profile's (`_profile`), not this plane's.
-        nearest = np.sort(distances[:count])[int(NEAREST_SHARE * (count - 1))]
-        kept = 0
-        for i in range(count):
-            if distances[i] <= nearest + FIT_DEPTH:
-                points[kept] = points[i]
-                tolerance[kept] = tolerance[i]
-                noise_band[kept] = noise_band[i]
-                kept += 1
-        count = kept
+    if count == 0:
+        out[:] = 0.0
+        out[6] = FEW_CANDIDATES
+        return
+    # The floor where the robot stands: beyond where it is first seen (a low percentile of
+    # the candidates' runs, clear of a stray near point), over FIT_RUN_LONG metres where the
+    # floor is one plane there (the longer the run, the truer the tilt), else over FIT_RUN:
+    # a long run takes in a ramp's foot (or a crest) well before the robot gets there, and
+    # the plane tilts towards it. A ramp farther ahead is the profile's (`_profile`).
+    nearest = np.sort(distances[:count])[int(NEAREST_SHARE * (count - 1))]
+    near = np.empty(7)
+    fit_within(
+        points, tolerance, noise_band, distances, count, nearest + FIT_RUN, prior, start,
+        max_offset, max_tilt, draws, min_points, min_spread, near,
+    )  # fmt: skip
+    fit_within(
+        points, tolerance, noise_band, distances, count, nearest + FIT_RUN_LONG, prior, start,
+        max_offset, max_tilt, draws, min_points, min_spread, out,
+    )  # fmt: skip
+    if out[6] != OK:
+        if near[6] == OK:
+            out[:] = near
+        return
+    if near[6] == OK:
+        cosine = out[0] * near[0] + out[1] * near[1] + out[2] * near[2]
+        if cosine < math.cos(BEND) or abs(out[3] - near[3]) > BEND_OFFSET:
+            out[:] = near
+
+
+def _fit_within(
+    candidates: Any,
+    candidate_tolerance: Any,
+    candidate_noise: Any,
+    runs: Any,
+    count: int,
+    limit: float,
+    prior: Any,
+    start: Any,
+    max_offset: float,
+    max_tilt: float,
+    draws: Any,
+    min_points: int,
+    min_spread: float,
+    out: Any,
+) -> None:
+    """RANSAC and least squares (`_fit`) on the first `count` candidates whose run is at
+    most `limit` metres."""
+    points = np.empty((count, 3))
+    tolerance = np.empty(count)
+    noise_band = np.empty(count)
+    kept = 0
+    for i in range(count):
+        if runs[i] <= limit:
+            points[kept] = candidates[i]
+            tolerance[kept] = candidate_tolerance[i]
+            noise_band[kept] = candidate_noise[i]
+            kept += 1
+    count = kept
+    cos_tilt = math.cos(max_tilt)
     out[:] = 0.0
     out[4] = count
     if count < max(min_points, 3):
@@ -217,7 +275,7 @@ def _fit(
                 + candidate[3]
             )
             # The floor is the lowest large surface: points below a plane count against it.
-            score += (abs(height) <= tolerance[i]) - (height < -tolerance[i])
+            score += int(abs(height) <= tolerance[i]) - int(height < -tolerance[i])
         if score > best_score:
             best_score = score
             best[:] = candidate
@@ -225,8 +283,8 @@ def _fit(
         out[6] = OUT_OF_BOUNDS
         return
     inliers = 0
-    for _ in range(3):
-        inliers = refine(points, tolerance, noise_band, count, best, out)
+    for round_ in range(3):
+        inliers = refine(points, tolerance, noise_band, count, best, out, round_ > 0)
         if inliers < min_points:
             out[4] = inliers
             out[6] = FEW_INLIERS
@@ -243,6 +301,7 @@ def _fit(
 
 
 axes = compiled(_axes)
+fit_within = compiled(_fit_within)
 determinant3 = compiled(_determinant)
 refine = compiled(_refine)
 fit = compiled(_fit)
@@ -289,7 +348,7 @@ def _profile(
     top nor a drop's far floor becomes ground by distance alone).
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
-    than `deadband` plus twice the noise (1 sigma) of its points off the plane.
+    than `deadband` off the plane.
     """
     bins = profile.shape[1]
     count = rows.size
@@ -300,6 +359,7 @@ def _profile(
     height = np.empty((columns_used, count))
     allowed = np.empty((columns_used, count))
     slot = np.full((columns_used, count), -1, np.int64)
+    seen = np.zeros((columns_used, bins), np.bool_)
     for j in range(count):
         for c in range(columns_used):
             column = columns[c]
@@ -339,7 +399,7 @@ def _profile(
         evidence[c] = 0
         for b in range(bins):
             centre = (b + 0.5) * bin_size
-            total, sigma, found, above, below = 0.0, 0.0, 0, 0, 0
+            total, found, above, below = 0.0, 0, 0, 0
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
                 run = radius[c, j] - at
@@ -347,7 +407,6 @@ def _profile(
                 clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[c, j]
                 if candidate(rise, run, tan_slope, allowed[c, j]):
                     total += height[c, j]
-                    sigma += allowed[c, j]
                     found += 1
                 elif rise > clear:
                     above += 1
@@ -355,22 +414,42 @@ def _profile(
                     below += 1
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
-                # points) the ground does not jump to stray points far beyond it.
+                # points) the ground does not jump to stray points far beyond it. But from
+                # the camera's foot to the first floor it sees, it may rise the whole run: a
+                # ramp that starts under the robot's front rises all the way.
                 reach = tan_slope * min(max(centre - at, 0.0), bin_size)
+                rise = tan_slope * centre if at == 0.0 else reach
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
-                top = ground if above >= max(2, found // 4) else ground + reach
+                top = ground if above >= max(2, found // 4) else ground + rise
                 bottom = ground if below >= max(2, found // 4) else ground - reach
                 ground = min(max(total / found, bottom), top)
                 at = centre
-                # Off by more than the deadband and twice the noise of a point there.
-                streak = streak + 1 if abs(ground) > deadband + 2.0 * sigma / found else 0
+                seen[c, b] = True
+                # Off by more than the deadband (the mean of a bin's points is far steadier
+                # than one of them: the deadband is what the slab's bottom can afford).
+                streak = streak + 1 if abs(ground) > deadband else 0
                 evidence[c] = max(evidence[c], streak)
             elif above >= 2 or below >= 2:
                 # An obstacle or a drop and no ground: the ground is held level across it, so
                 # the window does not widen onto a deep box's top or a drop's far floor.
                 at = centre
             profile[c, b] = ground
+    # A bin where a column saw no ground (behind an obstacle, past a wall's foot) takes the
+    # ground of the nearest column within FILL_COLUMNS that saw it there, not its own held
+    # level: an image column fans out across the floor, and the pixels mapped to it beside
+    # a wall still see the ramp its neighbour walked up.
+    for b in range(bins):
+        for c in range(columns_used):
+            if seen[c, b]:
+                continue
+            for step in range(1, FILL_COLUMNS + 1):
+                if c - step >= 0 and seen[c - step, b]:
+                    profile[c, b] = profile[c - step, b]
+                    break
+                if c + step < columns_used and seen[c + step, b]:
+                    profile[c, b] = profile[c + step, b]
+                    break
 
 
 def _crossings(
@@ -386,6 +465,7 @@ def _crossings(
     bin_size: float,
     far: float,
     levels: Any,
+    margin_sigmas: float,
     lifts: Any,
 ) -> None:
     """Per level L and ray the ground's height g above the plane at the point where the
@@ -396,6 +476,10 @@ def _crossings(
     The line of sight's height above the ground falls along it (it looks down more steeply
     than any floor slopes), so the first knot below L brackets the point. A line of sight
     that stays above L within `far` metres of depth takes the ground under its point at `far`.
+
+    Where the ground rises away from the camera, a level L > 0 is raised by
+    `margin_sigmas` (noise per metre of depth squared, sigmas included) x Z^2 x the rise per
+    metre of depth there (see `slope_margin`), as a lift that measures it above that ground.
     """
     bins = profile.shape[1]
     last = columns.size - 1
@@ -414,6 +498,7 @@ def _crossings(
         count = min(levels.size, lifts.shape[0])
         pending = 0
         previous_gap = plane[3] - profile[c, 0]
+        z_before = 0.0
         for b in range(bins + 1):
             # Knots at bin centres, and the far end.
             z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
@@ -426,15 +511,39 @@ def _crossings(
                 above = previous_gap - target
                 below = gap - target
                 share = above / (above - below) if above > below else 1.0
-                lifts[pending, i] = g_before + share * (g - g_before)
+                lift = g_before + share * (g - g_before)
+                if target > 0.0 and z > z_before:
+                    depth = z_before + share * (z - z_before)
+                    lift += slope_margin(
+                        margin_sigmas * depth * depth, (g - g_before) / (z - z_before), down
+                    )
+                lifts[pending, i] = lift
                 pending += 1
             if z >= far or pending == count:
                 break
             previous_gap = gap
+            z_before = z
         for level in range(pending, count):
             lifts[level, i] = g  # the ground at the walk's last knot: depth `far`
 
 
+def _slope_margin(sigma: float, rise: float, down: float) -> float:
+    """How much to raise a lift where the ground rises `rise` metres per metre of depth
+    along a line of sight that falls `down` (< 0) metres per metre of depth above the plane,
+    at a depth of noise `sigma` (metres along the ray, sigmas included).
+
+    Noise along a line of sight moves its point by `down` per metre over a flat floor, but
+    by `down` - `rise` over a rising ramp: a reading short of the ramp lands above lower
+    ground. The slab's bottom is raised by sigma x rise above the ramp, so it stands as many
+    sigmas above a ramp's readings as above a flat floor's; the tables measure a lift above
+    ground that stays where it is, so the lift is that margin x down / (down - rise).
+    Nothing on flat or falling ground, or on a line of sight that does not look down."""
+    if not (rise > 0.0 and down < 0.0 and sigma > 0.0):
+        return 0.0
+    return sigma * rise * -down / (rise - down)
+
+
+slope_margin = compiled(_slope_margin)
 candidate = compiled(_candidate)
 profile = compiled(_profile, error_model='numpy')
 crossings = compiled(_crossings, error_model='numpy')
