@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 
 pytest.importorskip('rclpy')
 
-from tests.ros.test_node_dds import SCENE_PARAMS, Loopback, domain_id
+from tests.ros.test_node_dds import SCENE_PARAMS, Loopback
+from tests.support.loopback_domains import domain_id
 
 pytestmark = pytest.mark.ros
 

@@ -9,10 +9,8 @@ from __future__ import annotations
 import os
 import re
 import shlex
-import signal
 import subprocess
 import sys
-import time
 from typing import TYPE_CHECKING
 
 import pytest
@@ -32,7 +30,7 @@ pytest.importorskip('rclpy')
 
 from scanfuse.app.demo import live_commands
 from scanfuse.ros.play import PlayError, PlayOptions
-from tests.ros.test_node_dds import domain_id
+from tests.support.loopback_domains import domain_id
 
 
 def recorded_counts(bag: Path) -> dict[str, int]:
@@ -147,11 +145,12 @@ def test_demo_commands_run_the_node_on_its_recording_over_dds(tmp_path):
     )
     try:
         played = subprocess.run(
-            [*shlex.split(play_command), '--wait', '120'],
+            # A fresh clone's node compiles its kernels first: wait for it as long as that takes.
+            [*shlex.split(play_command), '--wait', '300'],
             env=env,
             capture_output=True,
             text=True,
-            timeout=240,
+            timeout=420,
             check=False,
         )
     finally:
@@ -191,27 +190,3 @@ def test_a_ros1_bag_plays_every_message_of_the_chosen_topics(tmp_path):
     published, heard = summary(done.stdout)
     assert published == {'/scan': counts['/scan'], '/tf_static': counts['/tf_static']}
     assert heard == {}
-
-
-def test_loop_plays_the_recording_again_until_interrupted(tmp_path):
-    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
-    counts = recorded_counts(bag)
-    env = with_repository_on_path({**os.environ, 'ROS_DOMAIN_ID': str(domain_id())})
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    player = subprocess.Popen(
-        play_command(str(bag), '--loop', '--topic', '/scan', '--rate', '2'),
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    # At twice the pace a 0.5 s recording takes 0.25 s: several loops pass in a few seconds.
-    time.sleep(4.0)
-    player.send_signal(signal.SIGINT)
-    out, err = player.communicate(timeout=60)
-    assert player.returncode == 0, err
-    published, _ = summary(out)
-    loops = int(re.search(r', (\d+) loops:', out).group(1))
-    assert loops >= 2, out
-    # Whole loops, plus the part of the last one played before Ctrl-C.
-    assert loops * counts['/scan'] <= published['/scan'] <= (loops + 1) * counts['/scan']

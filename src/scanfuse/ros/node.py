@@ -111,6 +111,7 @@ ODOMETRY_QOS = QoSProfile(
 )
 # An input with no publisher this long after start-up is reported (discovery takes seconds).
 SILENT_INPUT_GRACE_S = 5.0
+GRAPH_PERIOD_S = 2.0  # how often the diagnostics timer asks the graph for publishers
 # Fire just after a deadline, so `now >= deadline` holds when the timer runs.
 DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
@@ -227,6 +228,8 @@ class ScanfuseNode:
         self.started = time.monotonic()
         self.silent_since: dict[str, float] = {}
         self.silent_reported: dict[str, str] = {}
+        self.graph_checked = -math.inf
+        self.silent_due: list[SilentInput] = []
         self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
         if config.imu_topic:
@@ -501,7 +504,14 @@ class ScanfuseNode:
 
     def silent_inputs(self, now: float) -> list[SilentInput]:
         """Inputs nothing has published for SILENT_INPUT_GRACE_S, each logged once (again when
-        what could stand in for it changes)."""
+        what could stand in for it changes). The graph is asked every GRAPH_PERIOD_S."""
+        if now - self.graph_checked < GRAPH_PERIOD_S:
+            return self.silent_due
+        self.graph_checked = now
+        self.silent_due = self._silent_inputs(now)
+        return self.silent_due
+
+    def _silent_inputs(self, now: float) -> list[SilentInput]:
         graph = self.node.get_topic_names_and_types()
         publishers = {name: self.node.count_publishers(name) for name, _ in graph}
         publishers.update({name: self.node.count_publishers(name) for name in self.inputs})

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import ok
 
 from scanfuse.errors import ScanfuseError
@@ -221,7 +222,9 @@ class Player:
 def play_bag(bag: Path, options: PlayOptions, say: Callable[[str], None]) -> PlaybackReport:
     """Publish `bag` on DDS as recorded; what was published and heard back."""
     recording = read_recording(bag)
-    rclpy.init()
+    # Without rclpy's handlers Ctrl-C is Python's KeyboardInterrupt, which ends a --loop
+    # cleanly with the summary (rclpy's own handler may end the process before it prints).
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         player = Player(recording, options, say)
         try:
