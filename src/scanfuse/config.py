@@ -268,6 +268,57 @@ class FusionConfig(BaseModel):
             "a reading (a 270-degree LiDAR's blind sector, filled by another LiDAR or camera)"
         ),
     )
+    output_frame: str = Field(
+        '',
+        description=(
+            'frame of the output scan (any frame TF or the mountings reach: base_frame, a '
+            "LiDAR's); every source's readings are re-binned into it from their 3D points. "
+            "Empty: the first LiDAR's frame (no LiDAR: the camera's for the row method, else "
+            'base_frame)'
+        ),
+    )
+    angle_increment: float = Field(
+        0.0,
+        ge=0.0,
+        le=math.pi,
+        allow_inf_nan=False,
+        description=(
+            "output grid step, radians; 0: the first LiDAR's grid (no LiDAR: the row "
+            "method's own, depthimage_to_laserscan's; else pi/360 over angle_min..angle_max)"
+        ),
+    )
+    angle_min: float = Field(
+        -math.pi,
+        ge=-2.0 * math.pi,
+        le=2.0 * math.pi,
+        allow_inf_nan=False,
+        description='first angle of the output grid, radians (with angle_increment or no LiDAR)',
+    )
+    angle_max: float = Field(
+        math.pi,
+        ge=-2.0 * math.pi,
+        le=2.0 * math.pi,
+        allow_inf_nan=False,
+        description='last angle of the output grid, radians (with angle_increment or no LiDAR)',
+    )
+    trigger: str = Field(
+        '',
+        description=(
+            "the named source whose messages make the outputs (its frame is output_frame's "
+            'default); empty: the first LiDAR (no LiDAR: the first camera, else the first cloud)'
+        ),
+    )
+    publish_rate: float = Field(
+        0.0,
+        ge=0.0,
+        le=1000.0,
+        allow_inf_nan=False,
+        description=(
+            'Hz; 0: one output per scan of the first LiDAR; > 0: outputs stamped k / '
+            'publish_rate, each the freshest scan (at most its max_time_offset old) moved to '
+            'that stamp through odometry, the other sources paired with it as with a scan'
+        ),
+    )
     use_tf: bool = Field(
         default=True, description='take extrinsics from /tf_static and /tf when they are there'
     )
@@ -364,8 +415,13 @@ class FusionConfig(BaseModel):
     publish_depth_scan: bool = Field(
         default=True, description='also publish the depth scan on /scan_depth'
     )
-    scan_topic: str = Field('/scan', description='LiDAR LaserScan topic')
-    depth_topic: str = Field('/camera/depth/image_raw', description='depth Image topic')
+    scan_topic: str = Field(
+        '/scan', description='LiDAR LaserScan topic; empty: no LiDAR (a camera-only robot)'
+    )
+    depth_topic: str = Field(
+        '/camera/depth/image_raw',
+        description='depth Image topic; empty: no camera (LiDARs or clouds only)',
+    )
     camera_info_topic: str = Field('/camera/depth/camera_info', description='CameraInfo topic')
     fused_topic: str = Field('/scan_fused', description='fused LaserScan topic')
     depth_scan_topic: str = Field('/scan_depth', description='depth LaserScan topic')
@@ -412,6 +468,26 @@ class FusionConfig(BaseModel):
                 f'least {_smallest_cell(self.memory_radius):.4f} m or memory_radius smaller'
             )
             raise ValueError(msg)
+        if not (self.has_lidar or self.has_camera or self.sources.clouds):
+            msg = (
+                'no source: scan_topic and depth_topic are empty and no cloud is named; '
+                'give at least one LiDAR, depth camera or cloud'
+            )
+            raise ValueError(msg)
+        if self.trigger:
+            _check_trigger(self)
+        if self.publish_rate > 0.0 and not self.has_lidar:
+            msg = (
+                'publish_rate moves LiDAR scans to its stamps and needs a LiDAR; without one '
+                'every depth frame (or cloud) makes an output: set publish_rate: 0'
+            )
+            raise ValueError(msg)
+        if self.angle_increment > 0.0 and self.angle_max <= self.angle_min:
+            msg = (
+                f'angle_max ({self.angle_max}) must be above angle_min ({self.angle_min}) '
+                'for the output grid'
+            )
+            raise ValueError(msg)
         if self.d2l_compat and self.scan_row is not None:
             msg = (
                 'd2l_compat reproduces depthimage_to_laserscan, whose band is always centred '
@@ -419,6 +495,16 @@ class FusionConfig(BaseModel):
             )
             raise ValueError(msg)
         return self
+
+    @property
+    def has_lidar(self) -> bool:
+        """A LiDAR is configured (`scan_topic`, or the first named LiDAR, non-empty)."""
+        return bool(self.scan_topic)
+
+    @property
+    def has_camera(self) -> bool:
+        """A depth camera is configured (`depth_topic`, or the first named camera)."""
+        return bool(self.depth_topic)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> FusionConfig:
@@ -430,6 +516,7 @@ class FusionConfig(BaseModel):
         """
         values, named = split_sources(values)
         if named is not None:
+            named = _trigger_first(named, values.get('trigger'))
             values = {**values, **_primary_from_sources(named), 'sources': named}
         try:
             return cls.model_validate(values)
@@ -485,6 +572,53 @@ def _hint(error: Any) -> str:
     ):
         return f' (radians: {value:g} deg = {math.radians(value):.3f})'
     return ''
+
+
+def _trigger_first(named: dict[str, Any], trigger: object) -> dict[str, Any]:
+    """The source lists with the `trigger` source first in its own (the first of a kind is
+    the one that triggers); unchanged when no listed source has that name."""
+    if not trigger:
+        return named
+    out = dict(named)
+    for kind in ('lidars', 'cameras', 'clouds'):
+        items = named.get(kind)
+        if not isinstance(items, list):
+            continue
+        chosen = [item for item in items if isinstance(item, dict) and item.get('name') == trigger]
+        if chosen:
+            out[kind] = chosen + [item for item in items if item is not chosen[0]]
+    return out
+
+
+def _check_trigger(config: FusionConfig) -> None:
+    """ValueError unless `trigger` names the source that makes the outputs: a LiDAR, or
+    without a LiDAR a camera, or with neither a cloud."""
+    sources, trigger = config.sources, config.trigger
+    names = {
+        'lidars': [s.name for s in sources.lidars],
+        'cameras': [s.name for s in sources.cameras],
+        'clouds': [s.name for s in sources.clouds],
+    }
+    kind = next((kind for kind, listed in names.items() if trigger in listed), None)
+    if kind is None:
+        every = [name for listed in names.values() for name in listed]
+        msg = (
+            f'trigger {trigger!r} is no named source (named: {", ".join(every) or "none"}); '
+            'name one of them, or leave trigger empty for the first LiDAR'
+        )
+        raise ValueError(msg)
+    if kind == 'cameras' and config.has_lidar:
+        msg = (
+            f'trigger {trigger!r} is a camera: a camera makes the outputs only on a robot '
+            "without a LiDAR (scan_topic: '' and no lidars); name a LiDAR"
+        )
+        raise ValueError(msg)
+    if kind == 'clouds' and (config.has_lidar or config.has_camera):
+        msg = (
+            f'trigger {trigger!r} is a cloud: a cloud makes the outputs only on a robot '
+            "without LiDAR and camera (scan_topic: '', depth_topic: ''); name a LiDAR"
+        )
+        raise ValueError(msg)
 
 
 def _own_slabs(config: FusionConfig) -> list[tuple[str, float, float]]:

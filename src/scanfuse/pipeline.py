@@ -212,16 +212,7 @@ class FusionPipeline:
             )
             resampled = time.perf_counter()
         else:
-            depth_scan = row_scan(
-                depth,
-                camera,
-                scan_row=self.config.scan_row,
-                scan_height=self.config.scan_height,
-                range_min=self.config.range_min,
-                range_max=self.config.range_max,
-                d2l_compat=self.config.d2l_compat,
-                floor_guard=self._floor_guard,
-            )
+            depth_scan = self.row_depth_scan(depth, camera)
             if not motion.is_identity:
                 depth_scan = depth_scan.with_ranges(
                     depth_scan.ranges,
@@ -238,6 +229,20 @@ class FusionPipeline:
             fused=fused,
             depth_scan=on_lidar_grid,
             timings=StageTimings(converted - start, resampled - converted, merged - resampled),
+        )
+
+    def row_depth_scan(self, depth: npt.NDArray[np.generic], camera: CameraModel) -> Scan:
+        """Algorithm 1 (the row method) on its own grid: one reading per image column, as
+        depthimage_to_laserscan publishes it (bit for bit with `d2l_compat`)."""
+        return row_scan(
+            depth,
+            camera,
+            scan_row=self.config.scan_row,
+            scan_height=self.config.scan_height,
+            range_min=self.config.range_min,
+            range_max=self.config.range_max,
+            d2l_compat=self.config.d2l_compat,
+            floor_guard=self._floor_guard,
         )
 
     def prepare(self, camera: CameraModel, extrinsics: Extrinsics, grid: AngleGrid) -> None:

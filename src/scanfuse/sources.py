@@ -13,11 +13,14 @@ A parameter file may name several LiDARs, depth cameras and point clouds:
         clouds: [livox]
         livox: {topic: /livox/points, min_height: 0.05}
 
-The first LiDAR triggers every output scan and gives its frame and grid (slam_toolbox
-needs a constant reading count); every other source contributes its freshest message
-within its own `max_time_offset`, moved to the output stamp. The single-LiDAR,
-single-camera parameters (`scan_topic`, `depth_topic`, `lidar_*`, `camera_*`) are the
-one-source case: a named first LiDAR or camera takes their place.
+The first LiDAR (or the one `trigger` names) triggers every output scan and gives its
+frame and grid unless `output_frame` and `angle_increment` set them (slam_toolbox needs a
+constant reading count); every other source contributes its freshest message within its own
+`max_time_offset`, moved to the output stamp. Without a LiDAR (`scan_topic: ''`) the first
+camera's frames trigger, without LiDAR and camera the first cloud's messages. The
+single-LiDAR, single-camera parameters (`scan_topic`, `depth_topic`, `lidar_*`, `camera_*`)
+are the one-source case: a named first LiDAR or camera takes their place; an empty topic
+is no such sensor.
 
 Each source's mounting is a full pose in the base frame (x, y, z, roll, pitch, yaw;
 REP-103), used when TF does not give it: an upside-down scanner is `roll: pi`.

@@ -25,6 +25,12 @@ decode messages and feed this class; every policy lives here, once:
   if the robot stood still and says so once.
 - **Malformed input** is the adapter's to detect (it decodes); it reports it with
   `note_malformed`, and the stream keeps the counts.
+- **Output.** In the first LiDAR's frame and grid, or in `output_frame` on `angle_min` ..
+  `angle_max` every `angle_increment`, the LiDAR re-binned from its points
+  (`scanfuse.output`). With `publish_rate` the outputs come at that rate, each the freshest
+  scan moved to its stamp (`_schedule`). Without a LiDAR (`scan_topic` empty) each frame of
+  the first camera makes an output (`_camera_triggered`), without LiDAR and camera each
+  message of the first cloud (`_cloud_triggered`).
 
 The stream has no clock of its own: every call that can release scans takes `now_ns`, the
 caller's clock (monotonic time in the node, log time in a bag, simulated time in the
@@ -38,7 +44,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field, replace
 from enum import Enum
-from typing import TYPE_CHECKING, Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar, cast
 
 import numpy as np
 
@@ -60,10 +66,11 @@ from scanfuse.memory import (
     worth_remembering,
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
+from scanfuse.output import configured_grid, default_grid, empty_scan, rebinned_lidar
 from scanfuse.pipeline import FusionPipeline
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
@@ -73,7 +80,7 @@ if TYPE_CHECKING:
     from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
     from scanfuse.pipeline import StageTimings
-    from scanfuse.scan import Scan
+    from scanfuse.scan import AngleGrid, Scan
 
 logger = logging.getLogger(__name__)
 
@@ -100,6 +107,8 @@ STILL_SPEED = 0.01
 STILL_TURN_RATE = 0.02
 # Beams of a sweep whose motion is found from odometry; the rest are interpolated.
 DESKEW_SAMPLES = 9
+# Scans kept for `publish_rate`: only the freshest within max_time_offset of a stamp is used.
+RATE_SCANS = 8
 
 
 def seconds_to_ns(seconds: float) -> int:
@@ -204,6 +213,20 @@ class _Pending(Generic[T]):
     arrived_ns: int
     deadline_ns: float
     assembled: bool = False  # made of fragments: no single message's bytes stand for it
+    # Already in the output frame and grid (a fixed rate's scan moved to its stamp), and
+    # where that frame lies on the base; None: the LiDAR's scan as it came.
+    base_to_output: Transform | None = None
+
+
+@dataclass(frozen=True)
+class OutputLayout:
+    """The frame and grid of an output scan, where the frame lies on the base, and the
+    first LiDAR's own scan when it is already that output (None: it is re-binned)."""
+
+    grid: AngleGrid
+    frame: str
+    base_to_output: Transform
+    own: Scan | None = None
 
 
 @dataclass(frozen=True)
@@ -262,6 +285,9 @@ class FusionStream(Generic[T]):
         self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
         self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
         self.assembler: FragmentAssembler[T] | None = None
+        # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
+        self._rate_scans: deque[tuple[Scan, T]] = deque(maxlen=RATE_SCANS)
+        self._next_output_ns: int | None = None
         self.reconfigure(config)
 
     # ------------------------------------------------------------ configuration
@@ -293,6 +319,11 @@ class FusionStream(Generic[T]):
         self._parameters = parameters
         self._max_offset_ns = seconds_to_ns(pipeline.config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
+        self._period_ns = round(1e9 / config.publish_rate) if config.publish_rate > 0 else 0
+        lidars = config.sources.lidars
+        own = lidars[0].max_time_offset if lidars else None
+        # How old a scan a fixed-rate output may move to its stamp (its bounded extrapolation).
+        self._scan_age_ns = seconds_to_ns(config.max_time_offset if own is None else own)
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
@@ -351,8 +382,12 @@ class FusionStream(Generic[T]):
         now_ns: int,
         frame_id: str = '',
         source: str | None = None,
+        token: T | None = None,
     ) -> list[StreamOutput[T]]:
-        """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`."""
+        """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`.
+
+        Without a LiDAR (`scan_topic` empty) each frame of the first camera makes an output
+        scan at its own stamp (`_camera_triggered`); `token` comes back with it."""
         if self._is_extra(source):
             try:
                 self.extras.add_depth(str(source), stamp_ns, depth, frame_id)
@@ -375,8 +410,11 @@ class FusionStream(Generic[T]):
         if self._started_ns is None:
             self._started_ns = now_ns
         self.counts.depth_frames += 1
-        self._frames.append(DepthFrame(stamp_ns, depth, self.camera, frame_id))
+        frame = DepthFrame(stamp_ns, depth, self.camera, frame_id)
+        self._frames.append(frame)
         self.counts.peak_frames = max(self.counts.peak_frames, len(self._frames))
+        if not self.config.has_lidar:
+            return self._camera_triggered(frame, now_ns, cast('T', token))
         return self._release(now_ns)
 
     def add_scan(
@@ -431,6 +469,9 @@ class FusionStream(Generic[T]):
                 'with the frame nearest its own stamp, in arrival order',
             )
         self._newest_scan_ns = max(scan.stamp_ns, self._newest_scan_ns or scan.stamp_ns)
+        if self._period_ns:
+            self._rate_scans.append((scan, token))  # outputs at the rate's stamps: `_schedule`
+            return
         self._pending.append(
             _Pending(scan, token, now_ns, now_ns + self.pair_wait_ns, assembled=assembled)
         )
@@ -442,8 +483,12 @@ class FusionStream(Generic[T]):
         now_ns: int,
         frame_id: str,
         source: str,
+        token: T | None = None,
     ) -> list[StreamOutput[T]]:
-        """The x, y, z (N x 3, sensor frame) of a named point-cloud source."""
+        """The x, y, z (N x 3, sensor frame) of a named point-cloud source.
+
+        With neither LiDAR nor camera each cloud of the first named cloud makes an output
+        scan at its stamp (`_cloud_triggered`); `token` comes back with it."""
         if not self._is_extra(source):
             msg = f'no cloud source named {source!r}; clouds: {", ".join(self.extras.clouds)}'
             raise InputError(msg)
@@ -455,6 +500,9 @@ class FusionStream(Generic[T]):
             )
             raise InputError(msg)
         self.extras.add_cloud(source, stamp_ns, points, frame_id)
+        config = self.config
+        if not (config.has_lidar or config.has_camera) and source == config.sources.clouds[0].name:
+            return self._cloud_triggered(stamp_ns, now_ns, cast('T', token))
         return self._release(now_ns)
 
     def _is_extra(self, source: str | None) -> bool:
@@ -561,6 +609,7 @@ class FusionStream(Generic[T]):
             arrived = self._pending[-1].arrived_ns if self._pending else self._newest_scan_ns
             for revolution, token in self.assembler.flush():
                 self._admit(revolution, token, arrived or 0, assembled=True)
+        self._schedule(self._newest_scan_ns or 0)
         out = []
         while self._pending:
             pending = self._pending.popleft()
@@ -595,11 +644,72 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ pairing
 
     def _release(self, now_ns: int) -> list[StreamOutput[T]]:
+        self._schedule(now_ns)
         out = []
         while self._pending and self._ready(self._pending[0], now_ns):
             out.append(self._settle(self._pending.popleft()))
         self._prune_frames()
         return out
+
+    # ------------------------------------------------------------ fixed rate
+
+    def _schedule(self, now_ns: int) -> None:
+        """With `publish_rate`: an output for every stamp k / publish_rate that the newest
+        scan or odometry has reached, made of the freshest scan at most `_scan_age_ns` before
+        it, moved there (`_moved_to`) and then waiting for the other sources as a scan
+        does. A stamp with no such scan, or that odometry cannot reach, is skipped."""
+        if not self._period_ns or not self._rate_scans:
+            return
+        period = self._period_ns
+        reach = max(self._rate_scans[-1][0].stamp_ns, self.odometry.newest_ns or 0)
+        first = self._next_output_ns
+        if first is None or reach - first > self._scan_age_ns + period:
+            # The first stamp, or after a gap: none older than a scan could still serve.
+            earliest = min(scan.stamp_ns for scan, _ in self._rate_scans)
+            first = max(earliest, reach - self._scan_age_ns - period)
+            first = -(-first // period) * period
+        stamp = first
+        while stamp <= reach:
+            fresh = [
+                (scan, token)
+                for scan, token in self._rate_scans
+                if 0 <= stamp - scan.stamp_ns <= self._scan_age_ns
+            ]
+            if fresh:
+                scan, token = max(fresh, key=lambda item: item[0].stamp_ns)
+                moved = self._moved_to(scan, stamp)
+                if moved is not None:
+                    deadline = now_ns + self.pair_wait_ns
+                    # Published anew (`assembled`): no received message's bytes stand for it.
+                    self._pending.append(
+                        _Pending(
+                            moved[0], token, now_ns, deadline, assembled=True,
+                            base_to_output=moved[1],
+                        )
+                    )  # fmt: skip
+            stamp += period
+        self._next_output_ns = stamp
+
+    def _moved_to(self, scan: Scan, stamp_ns: int) -> tuple[Scan, Transform] | None:
+        """`scan` (de-skewed) in the output frame and grid, moved from its stamp to
+        `stamp_ns` through odometry; None when odometry does not cover the move."""
+        lidar, _ = self._deskew(scan)
+        try:
+            layout = self._layout(lidar)
+        except ScanfuseError as err:
+            self.note_malformed('scan', err)
+            return None
+        base_to_output = layout.base_to_output
+        motion, _ = self._motion(lidar.stamp_ns, stamp_ns, base_to_output)
+        if motion is None:
+            self.counts.passed[Passed.NO_MOTION] = self.counts.passed.get(Passed.NO_MOTION, 0) + 1
+            return None
+        base_to_laser = self.base_to_laser(lidar.frame_id)
+        moved = rebinned_lidar(
+            lidar, base_to_laser, base_to_output, layout.grid, layout.frame, motion=motion,
+            stamp_ns=stamp_ns,
+        )  # fmt: skip
+        return moved, base_to_output
 
     def _ready(self, pending: _Pending[T], now_ns: int) -> bool:
         if self.camera is None:
@@ -658,37 +768,44 @@ class FusionStream(Generic[T]):
 
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan
-        lidar, deskewed = self._deskew(scan)
-        lidar = self._widen(lidar)
+        if pending.base_to_output is not None:  # moved to a fixed rate's stamp already
+            lidar, deskewed, base_to_output = scan, False, pending.base_to_output
+        else:
+            lidar, deskewed = self._deskew(scan)
+            lidar, base_to_output = self._to_output(lidar)
         if self.camera is None:
-            return self._pass(pending, lidar, deskewed, Passed.NO_CAMERA_INFO)
+            # No camera configured (LiDARs only): the LiDARs are the output, nothing passed.
+            reason = Passed.NO_CAMERA_INFO if self.config.has_camera else None
+            return self._pass(pending, lidar, deskewed, reason, base_to_output)
         frame = self._nearest_frame(scan.stamp_ns)
         if frame is None:
             silent = (
                 self._last_depth_ns is None
                 or pending.arrived_ns - self._last_depth_ns > self._camera_timeout_ns
             )
-            return self._pass(
-                pending, lidar, deskewed, Passed.CAMERA_SILENT if silent else Passed.NO_FRAME_NEAR
-            )
+            reason = Passed.CAMERA_SILENT if silent else Passed.NO_FRAME_NEAR
+            return self._pass(pending, lidar, deskewed, reason, base_to_output)
         choice = self.extrinsics_for(scan.frame_id, frame.optical_frame)
         if choice.extrinsics is None:
             self._warn_once('extrinsics', choice.source)
-            return self._pass(pending, lidar, deskewed, Passed.NO_EXTRINSICS)
-        motion, compensation = self._motion(
-            frame.stamp_ns, scan.stamp_ns, choice.extrinsics.base_to_laser
-        )
+            return self._pass(pending, lidar, deskewed, Passed.NO_EXTRINSICS, base_to_output)
+        # The camera's points are binned from the output's origin (the LiDAR's, or
+        # `output_frame`'s when the LiDAR was re-binned into it).
+        paired = choice.extrinsics
+        if paired.base_to_laser != base_to_output:
+            paired = replace(paired, base_to_laser=base_to_output)
+        motion, compensation = self._motion(frame.stamp_ns, scan.stamp_ns, base_to_output)
         if motion is None:
-            return self._pass(pending, lidar, deskewed, Passed.NO_MOTION)
+            return self._pass(pending, lidar, deskewed, Passed.NO_MOTION, base_to_output)
         try:
-            ground, extrinsics = self._on_ground(frame, choice.extrinsics)
+            ground, extrinsics = self._on_ground(frame, paired)
             profile = None if self.ground is None else self.ground.profile
             result = self.pipeline.fuse(
-                lidar, frame.depth, frame.camera, choice.extrinsics, motion, ground, profile
+                lidar, frame.depth, frame.camera, paired, motion, ground, profile
             )
         except ScanfuseError as err:
             self.note_malformed('fusion', err)
-            return self._pass(pending, lidar, deskewed, Passed.FUSION_FAILED)
+            return self._pass(pending, lidar, deskewed, Passed.FUSION_FAILED, base_to_output)
         self.counts.fused += 1
         if compensation is Compensation.COMPENSATED:
             self.counts.compensated += 1
@@ -703,7 +820,109 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=result.timings,
         )
-        return self._remember(self._with_extras(output), frame, extrinsics)
+        return self._remember(
+            self._with_extras(output, base_to_output), frame, extrinsics, base_to_output
+        )
+
+    # ------------------------------------------------------------ no LiDAR
+
+    def _camera_triggered(self, frame: DepthFrame, now_ns: int, token: T) -> list[StreamOutput[T]]:
+        """A camera-only robot's output for `frame`, at its stamp; none (counted as a
+        fusion failure, said once) when the camera cannot be placed or the frame converted."""
+        try:
+            output, extrinsics, base_to_output = self._camera_scan(frame, now_ns, token)
+            output = self._with_extras(output, base_to_output)
+            output = self._remember(output, frame, extrinsics, base_to_output)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
+            self.note_malformed('fusion', err)
+            self.counts.passed[Passed.FUSION_FAILED] = (
+                self.counts.passed.get(Passed.FUSION_FAILED, 0) + 1
+            )
+            return []
+        self.counts.fused += 1
+        return [output]
+
+    def _camera_scan(
+        self, frame: DepthFrame, now_ns: int, token: T
+    ) -> tuple[StreamOutput[T], Extrinsics, Transform]:
+        """The depth frame's scan as the output, the camera's extrinsics (on the floor found)
+        and where the output frame lies on the base.
+
+        The row method with no output grid given is depthimage_to_laserscan: the row scan on
+        its own grid (one reading per image column), labelled `output_frame` (else the depth
+        image's frame), bit for bit with `d2l_compat`. Otherwise the frame is converted onto
+        the output grid (`output.default_grid`) from `output_frame`'s origin (else
+        base_frame's), as with a LiDAR."""
+        config = self.config
+        mount = self.mounting(frame.optical_frame, self._parameters.base_to_camera_optical)
+        if mount is None:
+            msg = (
+                f'TF does not relate base_frame {config.base_frame} to the camera frame '
+                f'{frame.optical_frame}: publish the transform or set use_tf: false'
+            )
+            raise TransformError(msg)
+        if config.method is Method.ROW and configured_grid(config) is None:
+            # The row scan's angles turn about the camera's own vertical axis from its
+            # optical axis: the camera body frame (x forward) is where it lies.
+            base_to_output = mount @ BODY_TO_OPTICAL.inverse()
+            extrinsics = Extrinsics(base_to_output, mount)
+            depth_scan = self.pipeline.row_depth_scan(frame.depth, frame.camera)
+            scan = depth_scan.with_ranges(
+                depth_scan.ranges,
+                frame_id=config.output_frame or frame.frame_id or frame.camera.frame_id,
+                stamp_ns=frame.stamp_ns,
+            )
+            empty = empty_scan(scan.grid, scan.frame_id, scan.stamp_ns, 0.0, scan.range_max)
+            output = StreamOutput(
+                token=token,
+                lidar=empty,
+                fused=scan,
+                depth_scan=scan,
+                arrived_ns=now_ns,
+                depth_stamp_ns=frame.stamp_ns,
+                compensation=Compensation.OFF,
+            )
+            return output, extrinsics, base_to_output
+        frame_id = config.output_frame or config.base_frame
+        base_to_output = self.base_to_output(frame_id)
+        grid = default_grid(config)
+        empty = empty_scan(grid, frame_id, frame.stamp_ns, config.range_min, config.range_max)
+        paired = Extrinsics(base_to_output, mount)
+        ground, extrinsics = self._on_ground(frame, paired)
+        profile = None if self.ground is None else self.ground.profile
+        result = self.pipeline.fuse(empty, frame.depth, frame.camera, paired, ground=ground,
+                                    profile=profile)  # fmt: skip
+        output = StreamOutput(
+            token=token,
+            lidar=empty,
+            fused=result.fused,
+            depth_scan=result.depth_scan,
+            arrived_ns=now_ns,
+            depth_stamp_ns=frame.stamp_ns,
+            compensation=Compensation.OFF,
+            timings=result.timings,
+        )
+        return output, extrinsics, base_to_output
+
+    def _cloud_triggered(self, stamp_ns: int, now_ns: int, token: T) -> list[StreamOutput[T]]:
+        """A clouds-only robot's output at the first cloud's stamp: every cloud's slab
+        points (`_with_extras`) on the output grid, from `output_frame`'s origin (else
+        base_frame's)."""
+        config = self.config
+        frame_id = config.output_frame or config.base_frame
+        range_max = max(cloud.range_max for cloud in config.sources.clouds)
+        empty = empty_scan(default_grid(config), frame_id, stamp_ns, 0.0, range_max)
+        output = StreamOutput(token=token, lidar=empty, fused=empty, depth_scan=None,
+                              arrived_ns=now_ns)  # fmt: skip
+        try:
+            base_to_output = self.base_to_output(frame_id)
+            output = self._with_extras(output, base_to_output)
+            output = self._remember(output, None, None, base_to_output)
+        except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
+            self.note_malformed('fusion', err)
+            return []
+        self.counts.fused += 1
+        return [output]
 
     def _on_ground(
         self, frame: DepthFrame, extrinsics: Extrinsics
@@ -737,15 +956,81 @@ class FusionStream(Generic[T]):
         )
         return plane, on_ground
 
-    def _widen(self, lidar: Scan) -> Scan:
-        """With `full_circle`, the first LiDAR's scan on a 360-degree grid (`scan.full_circle`)."""
-        wide = full_circle(lidar) if self.config.full_circle else None
-        return lidar if wide is None else wide
+    def _to_output(self, lidar: Scan) -> tuple[Scan, Transform]:
+        """The first LiDAR's scan in the output frame, on the output grid (`_layout`), and
+        where that frame lies on the base: its readings re-binned from their points
+        (`output.rebinned_lidar`) when the frame or grid is not its own."""
+        layout = self._layout(lidar)
+        if layout.own is not None:
+            return layout.own, layout.base_to_output
+        base_to_laser = self.base_to_laser(lidar.frame_id)
+        scan = rebinned_lidar(lidar, base_to_laser, layout.base_to_output, layout.grid,
+                              layout.frame)  # fmt: skip
+        return scan, layout.base_to_output
+
+    def _layout(self, lidar: Scan) -> OutputLayout:
+        """The output `lidar` (the first LiDAR's scan) makes: its own frame and grid
+        (`full_circle`: a 360-degree grid of its increment, `scan.full_circle`) unless
+        `output_frame` or `angle_increment` say otherwise. TransformError when nothing
+        places `output_frame` (`base_to_output`)."""
+        config = self.config
+        grid = configured_grid(config)
+        frame = config.output_frame or lidar.frame_id
+        wide = full_circle(lidar) if config.full_circle else None
+        if frame_name(frame) == frame_name(lidar.frame_id) and grid is None:
+            own = lidar if wide is None else wide
+            return OutputLayout(own.grid, frame, self.base_to_laser(lidar.frame_id), own)
+        base_to_output = self.base_to_output(frame, lidar.frame_id)
+        return OutputLayout(grid or (lidar if wide is None else wide).grid, frame, base_to_output)
+
+    def prepare(self, lidar: Scan) -> None:
+        """Build the first camera's obstacle tables for the output `lidar` makes (its frame
+        and grid, `_layout`) now, not on the first fused scan (the node calls it when
+        CameraInfo or a new LiDAR grid arrives). Whatever fails is left for that scan to
+        report."""
+        camera = self.camera
+        if camera is None or self.config.method is not Method.OBSTACLE:
+            return
+        try:
+            layout = self._layout(lidar)
+            choice = self.extrinsics_for(layout.frame, camera.frame_id)
+            if choice.extrinsics is None:
+                return
+            paired = replace(choice.extrinsics, base_to_laser=layout.base_to_output)
+            self.pipeline.prepare(camera, paired, layout.grid)
+        except ScanfuseError:
+            return
+
+    def base_to_output(self, frame: str, lidar_frame: str = '') -> Transform:
+        """Where the output frame `frame` lies on the base: the base itself, TF, or the
+        first LiDAR's mounting when it is that LiDAR's frame (`lidar_frame`). TransformError
+        when none of them places it."""
+        name, base = frame_name(frame), frame_name(self.config.base_frame)
+        if name == base:
+            return Transform()
+        if self.config.use_tf and self.tf.can_transform(base, name):
+            return Transform.from_matrix(self.tf.lookup(base, name))
+        if lidar_frame and name == frame_name(lidar_frame):
+            return self._parameters.base_to_laser
+        msg = (
+            f'output_frame {frame!r} is neither base_frame {base!r} nor a frame TF relates to '
+            f'it (TF roots: {", ".join(self.tf.roots()) or "none"}): publish its transform or '
+            'set output_frame to base_frame'
+        )
+        raise TransformError(msg)
 
     def _pass(
-        self, pending: _Pending[T], lidar: Scan, deskewed: bool, reason: Passed
+        self,
+        pending: _Pending[T],
+        lidar: Scan,
+        deskewed: bool,
+        reason: Passed | None,
+        base_to_output: Transform | None = None,
     ) -> StreamOutput[T]:
-        self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        """The LiDAR (and the other sources) without the first camera, for `reason`; None:
+        no camera is configured, so nothing was passed over."""
+        if reason is not None:
+            self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
         # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's are.
         clean = _without_error_values(lidar)
         output = StreamOutput(
@@ -758,16 +1043,17 @@ class FusionStream(Generic[T]):
             passed=reason,
             deskewed=deskewed,
         )
-        return self._remember(self._with_extras(output), None, None)
+        mount = base_to_output or self.base_to_laser(lidar.frame_id)
+        return self._remember(self._with_extras(output, mount), None, None, mount)
 
     # ------------------------------------------------------------ other sources
 
-    def _with_extras(self, output: StreamOutput[T]) -> StreamOutput[T]:
-        """`output` with what the other named sources add (see `scanfuse.extras`)."""
+    def _with_extras(self, output: StreamOutput[T], base_to_output: Transform) -> StreamOutput[T]:
+        """`output` with what the other named sources add (see `scanfuse.extras`);
+        `base_to_output`: where the output frame lies on the base."""
         if not self.extras.names:
             return output
         base = output.fused if output.fused is not None else output.lidar
-        base_to_output = self.base_to_laser(output.lidar.frame_id)
         lidars, obstacles = self.extras.contributions(base, base_to_output, self)
         # A contribution with no reading at all changes nothing: keep the LiDAR's own bytes.
         lidars = [scan for scan in lidars if not np.isnan(scan.ranges).all()]
@@ -810,9 +1096,14 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ memory
 
     def _remember(
-        self, output: StreamOutput[T], frame: DepthFrame | None, extrinsics: Extrinsics | None
+        self,
+        output: StreamOutput[T],
+        frame: DepthFrame | None,
+        extrinsics: Extrinsics | None,
+        base_to_output: Transform,
     ) -> StreamOutput[T]:
-        """Clear, add, forget, and merge the remembered obstacles into `output`."""
+        """Clear, add, forget, and merge the remembered obstacles into `output` (in the
+        output frame, which lies at `base_to_output` on the base)."""
         memory = self.memory
         if memory is None or not len(self.odometry):
             return output
@@ -828,9 +1119,8 @@ class FusionStream(Generic[T]):
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
         own = self.pipeline.config  # the first camera's slab (`reconfigure`)
         slab = (own.min_obstacle_height, own.max_obstacle_height)
-        base_to_laser = self.base_to_laser(scan.frame_id)
-        pose = self._corrected(scan, base.pose, base_to_laser)
-        placement = Placement.of(pose, base_to_laser)
+        pose = self._corrected(scan, base.pose, base_to_output)
+        placement = Placement.of(pose, base_to_output)
         robot = (pose.x, pose.y)
         if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
             seen_from = self._clear_seen(
@@ -882,8 +1172,9 @@ class FusionStream(Generic[T]):
 
     def _corrected(self, scan: Scan, base: PlanarPose, base_to_laser: Transform) -> PlanarPose:
         """The base's pose in the memory's frame at `scan`'s stamp, the drift correction
-        first updated from `scan` (the first LiDAR's, de-skewed when odometry allowed)."""
-        if not self.config.memory_scan_matching:
+        first updated from `scan` (the first LiDAR's, de-skewed when odometry allowed).
+        Without a LiDAR there are no walls to match: odometry alone."""
+        if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
         result = self.drift.update(scan, base, base_to_laser)
         if result is not None and result.refused is not None:

@@ -171,6 +171,24 @@ def test_obstacle_tables_are_built_when_camera_info_arrives():
     assert live.stream.pipeline.cached[0] == 1  # before any depth frame or paired scan
 
 
+@pytest.mark.parametrize(
+    'output', [{'output_frame': 'base_link'}, {'full_circle': True}, {'angle_increment': 0.01}]
+)
+def test_obstacle_tables_are_built_for_the_output_frame_and_grid(output):
+    # The tables built at CameraInfo are those the first fused scan uses: none is built then.
+    scene = Scene(duration=0.5)
+    live = LiveFusion(FusionConfig(use_tf=False, **output))
+    messages = scene_messages(scene)
+    first_scan = next(raw for topic, _, _, raw in messages if topic == '/scan')
+    live.on_scan(first_scan, 0.0)
+    info = next(raw for topic, _, _, raw in messages if topic == '/camera/depth/camera_info')
+    live.on_camera_info(info, 0.01)
+    assert live.stream.pipeline.cached[0] == 1
+    outputs = feed(live, messages)
+    assert any(o.with_camera for o in outputs)
+    assert live.stream.pipeline.cached[0] == 1
+
+
 # ---------------------------------------------------------------- health (issue 11)
 
 

@@ -150,7 +150,7 @@ def _fit(
     points = np.empty((size, 3))
     tolerance = np.empty(size)
     noise_band = np.empty(size)
-    distances = np.empty(size)
+    runs = np.empty(size)
     sin_tilt = math.sin(max_tilt)
     count = 0
     for i in range(size):
@@ -175,7 +175,7 @@ def _fit(
         tolerance[count] = allowed
         noise_band[count] = spread
         drop = height - prior[3]  # below the camera, along the prior's normal
-        distances[count] = math.sqrt(max(distance * distance - drop * drop, 0.0))
+        runs[count] = math.sqrt(max(distance * distance - drop * drop, 0.0))
         count += 1
     if count == 0:
         out[:] = 0.0
@@ -186,14 +186,14 @@ def _fit(
     # floor is one plane there (the longer the run, the truer the tilt), else over FIT_RUN:
     # a long run takes in a ramp's foot (or a crest) well before the robot gets there, and
     # the plane tilts towards it. A ramp farther ahead is the profile's (`_profile`).
-    nearest = np.sort(distances[:count])[int(NEAREST_SHARE * (count - 1))]
+    nearest = np.sort(runs[:count])[int(NEAREST_SHARE * (count - 1))]
     near = np.empty(7)
     fit_within(
-        points, tolerance, noise_band, distances, count, nearest + FIT_RUN, prior, start,
+        points, tolerance, noise_band, runs, count, nearest + FIT_RUN, prior, start,
         max_offset, max_tilt, draws, min_points, min_spread, near,
     )  # fmt: skip
     fit_within(
-        points, tolerance, noise_band, distances, count, nearest + FIT_RUN_LONG, prior, start,
+        points, tolerance, noise_band, runs, count, nearest + FIT_RUN_LONG, prior, start,
         max_offset, max_tilt, draws, min_points, min_spread, out,
     )  # fmt: skip
     if out[6] != OK:
@@ -415,13 +415,13 @@ def _profile(
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it. But from
-                # the camera's foot to the first floor it sees, it may rise the whole run: a
-                # ramp that starts under the robot's front rises all the way.
-                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
-                rise = tan_slope * centre if at == 0.0 else reach
+                # the camera's foot to the first floor it sees, the whole run: a ramp that
+                # starts under the robot's front rises (or falls) all the way.
+                run = centre - at if at == 0.0 else min(max(centre - at, 0.0), bin_size)
+                reach = tan_slope * run
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
-                top = ground if above >= max(2, found // 4) else ground + rise
+                top = ground if above >= max(2, found // 4) else ground + reach
                 bottom = ground if below >= max(2, found // 4) else ground - reach
                 ground = min(max(total / found, bottom), top)
                 at = centre

@@ -197,7 +197,7 @@ class BagReport:
         table.add_column('value', justify='right', overflow='fold')
         rows = [
             ('input', str(self.input)),
-            ('topics', f'{self.topics.scan} + {self.topics.depth} ({self.topics.camera_info})'),
+            ('topics', self._topics()),
             *(
                 (f'  source {name}', f'{topic} ({kind.rsplit("/", 1)[-1]})')
                 for topic, name, kind in self.topics.sources
@@ -228,6 +228,11 @@ class BagReport:
         for name, value in rows:
             table.add_row(name, value)
         return table
+
+    def _topics(self) -> str:
+        topics = self.topics
+        camera = f'{topics.depth} ({topics.camera_info})' if topics.depth else ''
+        return ' + '.join(t for t in (topics.scan, camera) if t) or 'named sources only'
 
 
 def fuse_bag(
@@ -671,6 +676,11 @@ class _BagJob:
         self.source = Path(str(reader.paths[0]))
         # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
         self.store = reader.typestore if reader.is2 else _fresh_store(distro)
+        if LASER_SCAN not in self.store.fielddefs:
+            # A bag without a LiDAR (a camera-only robot) has no LaserScan definition of its
+            # own for the scans written: the distribution's, with what it uses.
+            known = get_typestore(_DISTRO_STORES[Distro(distro)]).fielddefs
+            self.store.register({k: v for k, v in known.items() if k not in self.store.fielddefs})
         self.cdr = CdrConverter(reader, self.store)
         self.topics_types = {
             name: info.msgtype or '?'
@@ -747,18 +757,28 @@ class _BagJob:
                 'depth_scan_topic in the parameters to names the bag does not use'
             )
             raise BagError(msg)
-        scan_topic = self._choose(scan, self.config.scan_topic, LASER_SCAN, '--scan', 'LaserScan')
+        # No LiDAR (scan_topic empty) or no camera (depth_topic empty) unless an option names
+        # one: '' is no topic.
+        scan_topic = ''
+        if scan is not None or self.config.has_lidar:
+            scan_topic = self._choose(
+                scan, self.config.scan_topic, LASER_SCAN, '--scan', 'LaserScan'
+            )
         images = {name: t for name, t in self.topics_types.items() if t == IMAGE}
         depth_topics = {name: t for name, t in images.items() if self._is_depth_topic(name)}
-        depth_topic = self._choose_depth(depth, images, depth_topics)
-        sibling = depth_topic.rsplit('/', 1)[0] + '/camera_info'
-        info_default = sibling if sibling in self.topics_types else self.config.camera_info_topic
-        if self.intrinsics is not None and camera_info is None:
-            info_topic = GIVEN_INTRINSICS  # the bag's CameraInfo, if any, is not used
-        else:
-            info_topic = self._choose(
-                camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
+        depth_topic = info_topic = ''
+        if depth is not None or self.config.has_camera:
+            depth_topic = self._choose_depth(depth, images, depth_topics)
+            sibling = depth_topic.rsplit('/', 1)[0] + '/camera_info'
+            info_default = (
+                sibling if sibling in self.topics_types else self.config.camera_info_topic
             )
+            if self.intrinsics is not None and camera_info is None:
+                info_topic = GIVEN_INTRINSICS  # the bag's CameraInfo, if any, is not used
+            else:
+                info_topic = self._choose(
+                    camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
+                )
         sources = self._named_sources()
         used = {scan_topic, depth_topic, info_topic, *(t for t, _, _ in sources)}
         sensor_types = {LASER_SCAN, POINT_CLOUD} | ({IMAGE} if depth_topics else set())
@@ -895,7 +915,10 @@ class _BagJob:
         if len(depth_topics) == 1:
             return next(iter(depth_topics))
         if not depth_topics:
-            msg = f'no depth Image topic (16UC1 or 32FC1) in bag {self.source}; {listing}'
+            msg = (
+                f'no depth Image topic (16UC1 or 32FC1) in bag {self.source}; {listing}; '
+                "for LiDARs or clouds only set depth_topic: '' in the parameters"
+            )
             raise BagError(msg)
         msg = f'several depth Image topics in bag {self.source}; choose one with --depth; {listing}'
         raise BagError(msg)
@@ -905,40 +928,43 @@ class _BagJob:
     def read_static(self, *, require_tf: bool) -> None:
         """Read the first CameraInfo, the sensors' frames and TF; choose the extrinsics."""
         assert self.choice is not None
-        scan = self.first_message(self.choice.scan)
-        depth = self.first_message(self.choice.depth)
-        if scan is None or depth is None:
-            empty = self.choice.scan if scan is None else self.choice.depth
-            msg = f'topic {empty} has no messages; cannot fuse'
-            raise BagError(msg)
-        if self.intrinsics is not None:
+        choice: TopicChoice = self.choice
+        scan = self.first_message(choice.scan) if choice.scan else None
+        depth = self.first_message(choice.depth) if choice.depth else None
+        for topic, first in ((choice.scan, scan), (choice.depth, depth)):
+            if topic and first is None:
+                msg = f'topic {topic} has no messages; cannot fuse'
+                raise BagError(msg)
+        info_frame = ''
+        if self.intrinsics is not None and depth is not None:
             given = self.intrinsics
             self.first_camera = CameraModel.from_intrinsics(
                 int(depth.width), int(depth.height), given.fx, given.fy, given.cx, given.cy,
                 frame_id=str(depth.header.frame_id),
             )  # fmt: skip
-            info_frame = ''
         else:
-            info = self.first_message(self.choice.camera_info)
-            if info is None:
+            info = self.first_message(choice.camera_info) if choice.camera_info else None
+            if choice.camera_info and info is None:
                 msg = (
-                    f'CameraInfo topic {self.choice.camera_info} has no messages; cannot fuse '
+                    f'CameraInfo topic {choice.camera_info} has no messages; cannot fuse '
                     "(give the camera's intrinsics instead: --intrinsics FX FY CX CY)"
                 )
                 raise BagError(msg)
-            self.first_camera = camera_from_msg(info)
-            info_frame = str(info.header.frame_id)
+            self.first_camera = None if info is None else camera_from_msg(info)
+            info_frame = '' if info is None else str(info.header.frame_id)
+        self._read_mounting()
+        if scan is None or depth is None or self.first_camera is None:
+            return  # one sensor: no pair whose extrinsics to check
         self.scan_frame = frame_name(str(scan.header.frame_id))
         self.depth_frame = frame_name(str(depth.header.frame_id) or info_frame)
-        self._read_mounting()
-        choice = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
-        if choice.extrinsics is None:
-            raise TransformError(choice.source)
-        if require_tf and not choice.source.startswith('TF'):
-            msg = f'--require-tf: no extrinsics from TF in {self.source}: {choice.source}'
+        extrinsics = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
+        if extrinsics.extrinsics is None:
+            raise TransformError(extrinsics.source)
+        if require_tf and not extrinsics.source.startswith('TF'):
+            msg = f'--require-tf: no extrinsics from TF in {self.source}: {extrinsics.source}'
             raise TransformError(msg)
-        if not choice.source.startswith('TF'):
-            logger.warning('extrinsics from the %s', choice.source)
+        if not extrinsics.source.startswith('TF'):
+            logger.warning('extrinsics from the %s', extrinsics.source)
 
     @property
     def extrinsics_source(self) -> str:
@@ -966,9 +992,9 @@ class _BagJob:
     ) -> dict[str, Any]:
         """Copy every message, feed the stream in log-time order, write what it releases."""
         assert self.choice is not None
-        assert self.first_camera is not None
         stream = self.stream
-        stream.add_camera_info(self.first_camera)
+        if self.first_camera is not None:
+            stream.add_camera_info(self.first_camera)
         counts = {'messages_read': 0}
         times: list[float] = []
         malformed: list[MalformedMessage] = []
@@ -1084,7 +1110,10 @@ class _BagJob:
             image = depth_from_msg(deserialize(cdr, IMAGE, self.store))
             if stream.camera is not None:
                 check_depth_matches_camera(image, stream.camera)
-            return stream.add_depth(image.stamp_ns, image.depth, log_time, image.frame_id)
+            # Without a LiDAR the frame makes an output, written at its log time.
+            return stream.add_depth(
+                image.stamp_ns, image.depth, log_time, image.frame_id, token=_Lidar(b'', log_time)
+            )
         extra = self.choice.source_of(topic)
         if extra is not None:
             return self._feed_source(extra, cdr, log_time)
@@ -1121,7 +1150,9 @@ class _BagJob:
             stream.add_camera_info(camera, source=name)
             return stream.tick(log_time)
         cloud = cloud_from_msg(deserialize(cdr, POINT_CLOUD, self.store))
-        return stream.add_cloud(cloud.stamp_ns, cloud.points, log_time, cloud.frame_id, name)
+        return stream.add_cloud(
+            cloud.stamp_ns, cloud.points, log_time, cloud.frame_id, name, _Lidar(b'', log_time)
+        )
 
     def _malformed(self, found: list[MalformedMessage], err: Exception, *, strict: bool) -> None:
         """Skip and list the message being handled (or, with `strict`, stop on it)."""

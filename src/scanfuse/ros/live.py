@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scanfuse.config import Method
 from scanfuse.errors import MessageError, ScanfuseError
 from scanfuse.pipeline import grids_match
 from scanfuse.ros.messages import (
@@ -66,6 +65,7 @@ class State(str, Enum):
     PASS_THROUGH = 'pass-through (camera silent)'  # noqa: S105 - not a password
     NO_CAMERA_INFO = 'pass-through (no CameraInfo)'
     NO_LIDAR = 'no LiDAR scans: publishing nothing'
+    NO_DEPTH = 'no depth images (no LiDAR): publishing nothing'
     CAMERA_UNUSABLE = 'camera input unusable'
     NO_EXTRINSICS = 'pass-through (extrinsics refused)'
     TOO_SLOW = 'processing too slow'
@@ -152,6 +152,7 @@ class LiveFusion:
         self._source_keys: dict[str, bytes | None] = {}  # CameraInfo of other cameras
         self._camera_info_error: str | None = None  # the last CameraInfo was unusable
         self._grid: tuple[AngleGrid, str] | None = None  # the primary LiDAR's grid and frame
+        self._grid_scan: Scan | None = None  # a scan of that grid: the output it makes
         self._sources_reported: tuple[dict[str, int], dict[str, int]] = ({}, {})
 
     # ------------------------------------------------------------ configuration
@@ -290,6 +291,7 @@ class LiveFusion:
             or not (grids_match(self._grid[0], scan.grid) and self._grid[1] == scan.frame_id)
         ):
             self._grid = (scan.grid, scan.frame_id)
+            self._grid_scan = scan
             self._prepare_tables()
         return self._add_scan(scan, raw, now, None)
 
@@ -320,9 +322,10 @@ class LiveFusion:
             self.stream.note_malformed('depth image', err)
             self._window.malformed_depth += 1
             return self._outputs(self.stream.tick(_ns(now)))
+        # Without a LiDAR the first camera's frame is an output: never published as is.
         return self._outputs(
             self.stream.add_depth(
-                image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source
+                image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source, token=b''
             )
         )
 
@@ -357,7 +360,7 @@ class LiveFusion:
             cloud = cloud_from_cdr(raw, self.store)
             return self._outputs(
                 self.stream.add_cloud(
-                    cloud.stamp_ns, cloud.points, _ns(now), cloud.frame_id, source
+                    cloud.stamp_ns, cloud.points, _ns(now), cloud.frame_id, source, b''
                 )
             )
         except ScanfuseError as err:
@@ -366,17 +369,10 @@ class LiveFusion:
 
     def _prepare_tables(self) -> None:
         """Build the obstacle method's per-camera tables now, when CameraInfo (or a new LiDAR
-        grid) arrives, so the first paired scan does not pay for them (issue 12)."""
-        camera, grid = self.stream.camera, self._grid
-        if camera is None or grid is None or self.config.method is not Method.OBSTACLE:
-            return
-        choice = self.stream.extrinsics_for(grid[1], camera.frame_id)
-        if choice.extrinsics is None:
-            return
-        try:
-            self.stream.pipeline.prepare(camera, choice.extrinsics, grid[0])
-        except ScanfuseError:
-            return  # the first fused scan reports it, as it would without this
+        grid) arrives, so the first paired scan does not pay for them (issue 12): on the
+        output's frame and grid (`FusionStream.prepare`)."""
+        if self._grid_scan is not None:
+            self.stream.prepare(self._grid_scan)
 
     def on_tf(self, raw: RawMessage, *, static: bool) -> None:
         try:
@@ -561,6 +557,8 @@ class LiveFusion:
         return next((p for p in problems if p is not None), (Level.OK, State.FUSING, 'fusing'))
 
     def _lidar_problem(self, now: float) -> Problem | None:
+        if not self.config.has_lidar:
+            return None  # a camera-only or clouds-only robot
         lidar_age = now - (self._last_scan if self._last_scan is not None else self._started or now)
         if self._last_scan is not None and lidar_age <= self.lidar_timeout:
             return None
@@ -569,7 +567,7 @@ class LiveFusion:
         return Level.ERROR, State.NO_LIDAR, message
 
     def _camera_info_problem(self) -> Problem | None:
-        if self.stream.camera is not None:
+        if self.stream.camera is not None or not self.config.has_camera:
             return None
         topic = self.config.camera_info_topic
         if self._camera_info_error is not None:
@@ -578,6 +576,9 @@ class LiveFusion:
                 f'({self._camera_info_error}); LiDAR passed through'
             )
             return Level.WARN, State.CAMERA_UNUSABLE, message
+        if not self.config.has_lidar:  # the camera makes every output: none without it
+            message = f'no CameraInfo on {topic}: publishing nothing'
+            return Level.ERROR, State.NO_CAMERA_INFO, message
         message = f'no CameraInfo on {topic}: LiDAR passed through'
         return Level.WARN, State.NO_CAMERA_INFO, message
 
@@ -628,6 +629,8 @@ class LiveFusion:
 
     def _silence_problem(self, camera_age: float, window: _Window) -> Problem | None:
         config = self.config
+        if not config.has_camera:
+            return None
         silent_now = camera_age > config.camera_timeout
         if not (silent_now or window.passed.get(Passed.CAMERA_SILENT)):
             return None
@@ -642,6 +645,9 @@ class LiveFusion:
             if silent_now
             else 'within camera_timeout for a part of the last report period'
         )
+        if not config.has_lidar:  # the camera makes every output: none without it
+            message = f'no depth image on {config.depth_topic} {age}: publishing nothing'
+            return Level.ERROR, State.NO_DEPTH, message
         message = f'no depth image on {config.depth_topic} {age}: LiDAR passed through'
         return Level.WARN, State.PASS_THROUGH, message
 

@@ -207,20 +207,26 @@ class ScanfuseNode:
         self.view: LiveView = make_view(config, foxglove_port, foxglove_host)
         self.node.add_on_set_parameters_callback(self._on_set_parameters)
         sensor_qos = qos_profile_sensor_data
-        inputs = (
-            (LaserScan, LASER_SCAN, 'scan_topic', config.scan_topic, self._on_scan),
-            (Image, IMAGE, 'depth_topic', config.depth_topic, self._on_depth),
-            (
-                CameraInfo,
-                CAMERA_INFO,
-                'camera_info_topic',
-                config.camera_info_topic,
-                self._on_camera_info,
-            ),
-        )
+        # No LiDAR (scan_topic empty) or no camera (depth_topic empty): nothing to hear there.
+        subscribed = []
+        if config.has_lidar:
+            subscribed.append(
+                (LaserScan, LASER_SCAN, 'scan_topic', config.scan_topic, self._on_scan)
+            )
+        if config.has_camera:
+            subscribed.append((Image, IMAGE, 'depth_topic', config.depth_topic, self._on_depth))
+            subscribed.append(
+                (
+                    CameraInfo,
+                    CAMERA_INFO,
+                    'camera_info_topic',
+                    config.camera_info_topic,
+                    self._on_camera_info,
+                )
+            )
         # Resolved names (after remapping) -> (type, parameter), watched for publishers.
         self.inputs: dict[str, tuple[str, str]] = {}
-        for kind, msgtype, parameter, topic, callback in inputs:
+        for kind, msgtype, parameter, topic, callback in subscribed:
             subscription = self.node.create_subscription(
                 kind, topic, callback, sensor_qos, raw=True
             )
@@ -251,8 +257,9 @@ class ScanfuseNode:
         # One-shot timers at the waiting scans' deadlines (no polling: it cost CPU all the time).
         self.deadline_timer: Any = None
         self.deadline_due: float | None = None
+        inputs = ' + '.join(t for t in (config.scan_topic, config.depth_topic) if t)
         self.rosout.info(
-            f'fusing {config.scan_topic} + {config.depth_topic} -> {config.fused_topic} '
+            f'fusing {inputs or "named clouds"} -> {config.fused_topic} '
             f'(method {config.method.value}; extrinsics: {self.tf_source}; '
             f'odometry: {self.odometry_source})'
         )
@@ -384,6 +391,12 @@ class ScanfuseNode:
 
     def _on_odometry(self, raw: bytes) -> None:
         self._guard('odometry', lambda: self.live.on_odometry(raw))
+        self._on_motion()
+
+    def _on_motion(self) -> None:
+        """With publish_rate, odometry reaching an output's stamp releases it."""
+        if self.live.config.publish_rate > 0.0:
+            self._on_tick()
 
     def _on_imu(self, raw: bytes) -> None:
         self._guard('imu', lambda: self.live.on_imu(raw))
@@ -395,6 +408,7 @@ class ScanfuseNode:
     def _on_tf(self, raw: bytes) -> None:
         self.live.on_tf(raw, static=False)
         self.view.log('/tf', raw)
+        self._on_motion()
 
     # ------------------------------------------------------------ data
 

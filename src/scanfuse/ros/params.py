@@ -48,6 +48,7 @@ START_UP_ONLY = frozenset(
         'instant_topic',
         'memory_scan_topic',
         'publish_depth_scan',
+        'trigger',  # which source's topic is subscribed as the trigger
     }
 )
 
