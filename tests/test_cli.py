@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import logging
+import math
 import os
 import re
 import shutil
@@ -418,3 +419,143 @@ def test_node_without_tf2_msgs_warns_in_one_line_and_goes_on(tmp_path):
         with_tf2 = run_cli(site_without(tmp_path / 'all', set()), 'node', '--params-file', missing)
         assert with_tf2.returncode == 1
         assert not lines_with(with_tf2.stderr, 'tf2_msgs is not installed')
+
+
+def write_params(path: Path, **values: object) -> Path:
+    import yaml
+
+    path.write_text(yaml.safe_dump({'scanfuse': {'ros__parameters': values}}), encoding='utf-8')
+    return path
+
+
+def test_bag_takes_the_depth_topic_the_parameter_file_names(tmp_path, capsys):
+    # The scene's depth topic is /camera/depth/image_raw (tests/support/synthetic.py); a file
+    # for a RealSense names another, as the node would subscribe to it.
+    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
+    realsense = write_params(
+        tmp_path / 'realsense.yaml', depth_topic='/camera/camera/depth/image_rect_raw'
+    )
+    assert main(['bag', str(bag), str(tmp_path / 'out'), '--params', str(realsense)]) == 1
+    line = ' '.join(capsys.readouterr().err.split())
+    assert 'depth topic /camera/camera/depth/image_rect_raw is not in the bag' in line
+    assert f'[depth_topic in {realsense} (--depth overrides it)]' in line
+    # --depth overrides the file, as -r remaps the node's topic.
+    args = ['--params', str(realsense), '--depth', '/camera/depth/image_raw']
+    assert main(['bag', str(bag), str(tmp_path / 'out'), *args]) == 0
+
+
+def test_an_angle_in_degrees_is_refused_with_its_value_in_radians(tmp_path, capsys):
+    pitched = write_params(tmp_path / 'pitch.yaml', camera_pitch=20)
+    assert (
+        main(['bag', str(tmp_path / 'any.mcap'), str(tmp_path / 'out'), '--params', str(pitched)])
+        == 1
+    )
+    line = ' '.join(capsys.readouterr().err.split())
+    assert f'(radians: 20 deg = {math.radians(20):.3f})' in line
+    assert '(radians: 20 deg = 0.349)' in line
+
+
+def test_a_misspelled_parameter_in_a_file_names_the_nearest_one(tmp_path, capsys):
+    typo = write_params(tmp_path / 'typo.yaml', min_obstacle_heigth=0.08)
+    assert (
+        main(['bag', str(tmp_path / 'any.mcap'), str(tmp_path / 'out'), '--params', str(typo)]) == 1
+    )
+    line = ' '.join(capsys.readouterr().err.split())
+    assert (
+        'min_obstacle_heigth: Extra inputs are not permitted (did you mean min_obstacle_height?)'
+        in line
+    )
+
+
+def fused_scans(bag: Path) -> dict[int, bytes]:
+    from rosbags.highlevel import AnyReader
+
+    from scanfuse.ros.messages import scan_from_cdr
+
+    with AnyReader([bag]) as reader:
+        wanted = [c for c in reader.connections if c.topic == '/scan_fused']
+        return {scan_from_cdr(raw).stamp_ns: bytes(raw) for _, _, raw in reader.messages(wanted)}
+
+
+def test_a_bag_without_camera_info_fuses_with_the_intrinsics_given(tmp_path, capsys):
+    from tests.support.synthetic import scene_messages, write_bag
+
+    scene = Scene(duration=1.0)
+    everything = scene_messages(scene)
+    without_info = write_bag(
+        tmp_path / 'no_info.mcap',
+        [message for message in everything if message[0] != '/camera/depth/camera_info'],
+    )
+    assert main(['bag', str(without_info), str(tmp_path / 'refused')]) == 1
+    assert '--intrinsics FX FY CX CY' in ' '.join(capsys.readouterr().err.split())
+    # The scene's camera (tests/support/synthetic.py): its CameraInfo's K, typed in.
+    camera = scene.camera
+    given = [str(value) for value in (camera.fx, camera.fy, camera.cx, camera.cy)]
+    out = tmp_path / 'given'
+    assert (
+        main(['bag', str(without_info), str(out), '--intrinsics', *given, '--no-depth-scan']) == 0
+    )
+    with_info = write_bag(tmp_path / 'with_info.mcap', everything)
+    assert main(['bag', str(with_info), str(tmp_path / 'from_info'), '--no-depth-scan']) == 0
+    expected = fused_scans(tmp_path / 'from_info')
+    assert expected
+    assert fused_scans(out) == expected
+
+
+def test_node_help_lists_the_foxglove_options(capsys):
+    from scanfuse.ros.live_view import DEFAULT_HOST, DEFAULT_PORT
+
+    assert main(['node', '--help']) == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    assert f'--foxglove [PORT]: serve a Foxglove live view on PORT (default {DEFAULT_PORT};' in text
+    assert f'--foxglove-host HOST: the address it listens on (default {DEFAULT_HOST}:' in text
+
+
+def test_a_bag_report_prints_as_a_table_within_80_columns(tmp_path):
+    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=0.5))
+    report = fuse_bag(bag, tmp_path / 'out')
+    text = str(report.table())
+    assert 'scanfuse bag:' in text
+    assert 'object at 0x' not in text
+    assert max(len(line) for line in text.splitlines()) <= 80
+    # A long path wraps inside its cell instead of being cut off.
+    assert '...' not in text
+    assert '\u2026' not in text
+    assert 'messages read' in text
+
+
+def test_a_simulated_bag_does_not_suggest_fusing_its_ground_truth(tmp_path):
+    from tests.support.synthetic import scene_messages, write_bag
+
+    # The simulator writes the ground-truth scan beside the LiDAR's (/scan -> /scan_truth).
+    messages = scene_messages(Scene(duration=0.5))
+    truth = [('/scan_truth', kind, t, raw) for topic, kind, t, raw in messages if topic == '/scan']
+    bag = write_bag(tmp_path / 'sim.mcap', [*messages, *truth])
+    report = fuse_bag(bag, tmp_path / 'out')
+    assert report.topics.unused == ()
+    assert 'scan_truth' not in str(report.table())
+
+
+def test_one_parameter_file_names_the_topics_for_simulate_and_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    realsense = write_params(
+        tmp_path / 'robot.yaml',
+        scan_topic='/rplidar/scan',
+        depth_topic='/camera/camera/depth/image_rect_raw',
+        camera_info_topic='/camera/camera/depth/camera_info',
+    )
+    recording = tmp_path / 'drive.mcap'
+    simulate = ['simulate', '--out', str(recording), '--duration', '1', '--params', str(realsense)]
+    assert main([*simulate, '--resolution', '424x240', '--depth-backend', 'multiray']) == 0
+    with AnyReader([recording]) as reader:
+        topics = set(reader.topics)
+    assert {
+        '/rplidar/scan',
+        '/camera/camera/depth/image_rect_raw',
+        '/camera/camera/depth/camera_info',
+    } <= topics
+    assert '/camera/depth/image_raw' not in topics
+    fused = tmp_path / 'fused'
+    assert main(['bag', str(recording), str(fused), '--params', str(realsense)]) == 0
+    assert fused_scans(fused)

@@ -1,8 +1,10 @@
 """The repository as a ROS 2 package: package.xml, and what `colcon build` installs.
 
 The colcon test builds a fresh workspace whose src/ holds the repository (a symlink), with
-and without --symlink-install, sources install/setup.bash and looks the package up the way
-`ros2 run` and `ros2 launch` do: through the ament index (ament_index_python).
+and without --symlink-install, under the system setuptools of Humble (59.6.0, Ubuntu 22.04)
+and Jazzy (68.1.2, Ubuntu 24.04) as well as the test environment's own, sources
+install/setup.bash and looks the package up the way `ros2 run` and `ros2 launch` do:
+through the ament index (ament_index_python).
 `ros2 launch` itself is not run: launch and launch_ros are not among the PyPI wheels, so
 the launch file is read with `ast` and what it names is checked against the install.
 """
@@ -14,15 +16,23 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
+import sysconfig
 import xml.etree.ElementTree as ET
+import zipfile
 from pathlib import Path
 
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from tests.support import REPOSITORY
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10: the test extra brings tomli
+    import tomli as tomllib
 
 ROOT = REPOSITORY
 SOURCES = ROOT / 'src' / 'scanfuse'
@@ -49,6 +59,11 @@ needs_colcon = pytest.mark.skipif(
     importlib.util.find_spec('colcon_core') is None,
     reason="colcon is not installed: pip install -e '.[test]' (make test installs it)",
 )
+
+
+# What colcon runs setup.py with on a stock ROS 2 machine: the system's setuptools.
+SYSTEM_SETUPTOOLS = {'humble': '59.6.0', 'jazzy': '68.1.2'}
+COLCON = 'import sys; from colcon_core.command import main; sys.exit(main(argv=sys.argv[1:]))'
 
 
 def manifest() -> ET.Element:
@@ -82,6 +97,32 @@ def test_package_xml_declares_every_ros_package_the_code_and_launch_file_import(
     # The node's own imports: if one of these is missing, the scan above is broken.
     assert {'rclpy', 'sensor_msgs', 'diagnostic_msgs', 'tf2_msgs', 'rcl_interfaces'} <= used
     assert used - declared == set()
+
+
+# Each of pyproject.toml's dependencies and its rosdep key (ros/rosdistro rosdep/python.yaml),
+# or None where no key resolves on Ubuntu 22.04 and 24.04.
+ROSDEP_KEYS = {
+    'numpy': 'python3-numpy',
+    'pydantic': 'python3-pydantic',
+    'pyyaml': 'python3-yaml',
+    'typer': None,
+    'rich': None,
+    'rosbags': None,
+    'numba': None,  # python3-numba has rules for bionic and focal only
+}
+
+
+def test_package_xml_declares_the_python_dependencies_that_have_rosdep_keys():
+    pyproject = tomllib.loads((ROOT / 'pyproject.toml').read_text(encoding='utf-8'))
+    names = {
+        re.split(r'[<>=!~ ;\[]', spec)[0].lower() for spec in pyproject['project']['dependencies']
+    }
+    # A new dependency needs a decision here: its key, or None.
+    assert names == set(ROSDEP_KEYS)
+    declared = {element.text for element in manifest().iter('exec_depend')}
+    expected = {key for key in ROSDEP_KEYS.values() if key is not None}
+    assert expected <= declared
+    assert {name for name in declared if name and name.startswith('python3-')} == expected
 
 
 def test_tf_message_hash_is_one_for_humble_jazzy_and_kilted():
@@ -129,17 +170,80 @@ def sourced_environment(workspace: Path) -> dict[str, str]:
     return json.loads(done.stdout.splitlines()[-1])
 
 
+@pytest.fixture(scope='session')
+def colcon_pythons(tmp_path_factory) -> dict[str, str]:
+    """An interpreter per setuptools: the test environment's, and one venv per distribution.
+
+    Each venv holds exactly that distribution's setuptools and colcon; a .pth file appends
+    this environment's site-packages after its own, so the built node can import numpy and
+    rclpy while setup.py sees only the pinned setuptools. The venvs use this interpreter's
+    Python version (the ROS wheels here are built for it), not the distributions' 3.10/3.12.
+    """
+    pythons = {'current': sys.executable}
+    base = (
+        Path(sys.base_prefix) / 'bin' / f'python{sys.version_info.major}.{sys.version_info.minor}'
+    )
+    for distribution, version in SYSTEM_SETUPTOOLS.items():
+        venv = tmp_path_factory.mktemp(f'colcon-{distribution}') / 'venv'
+        subprocess.run([str(base), '-m', 'venv', str(venv)], check=True, timeout=300)
+        python = venv / 'bin' / 'python'
+        subprocess.run(
+            [str(python), '-m', 'pip', 'install', '-q', '--disable-pip-version-check',
+             f'setuptools=={version}', 'colcon-common-extensions'],
+            check=True, timeout=600, capture_output=True,
+        )  # fmt: skip
+        purelib = Path(
+            subprocess.run(
+                [str(python), '-c', 'import sysconfig; print(sysconfig.get_paths()["purelib"])'],
+                check=True, capture_output=True, text=True, timeout=60,
+            ).stdout.strip()
+        )  # fmt: skip
+        (purelib / 'zz_test_environment.pth').write_text(
+            sysconfig.get_paths()['purelib'] + '\n', encoding='utf-8'
+        )
+        pythons[distribution] = str(python)
+    return pythons
+
+
+def test_setup_py_reads_pyproject_tables_as_tomllib_does():
+    # setup.py's own reader serves setuptools 59.6 on Python 3.10, which has no tomllib.
+    spec = importlib.util.spec_from_file_location('scanfuse_setup_under_test', ROOT / 'setup.py')
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # under this name setup() does not run
+    text = (ROOT / 'pyproject.toml').read_text(encoding='utf-8')
+    expected = tomllib.loads(text)['project']
+    read = module.read_project_tables(text)
+    assert read['project'] == {
+        key: value for key, value in expected.items() if key in read['project']
+    }
+    assert {'name', 'version', 'description', 'license', 'requires-python', 'dependencies'} <= set(
+        read['project']
+    )
+    assert read['project.scripts'] == expected['scripts']
+
+
 @needs_colcon
+@pytest.mark.parametrize('setuptools', ['current', 'humble', 'jazzy'])
 @pytest.mark.parametrize('options', [[], ['--symlink-install']], ids=['install', 'symlink'])
-def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_path, options):
+def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(
+    tmp_path, options, setuptools, colcon_pythons
+):
+    python = colcon_pythons[setuptools]
+    if setuptools in SYSTEM_SETUPTOOLS:
+        used = subprocess.run(
+            [python, '-c', 'import setuptools; print(setuptools.__version__)'],
+            check=True, capture_output=True, text=True, timeout=60, env=clean_environment(),
+        ).stdout.strip()  # fmt: skip
+        assert used == SYSTEM_SETUPTOOLS[setuptools]
     workspace = tmp_path / 'ws'
     (workspace / 'src').mkdir(parents=True)
     (workspace / 'src' / 'scanfuse').symlink_to(ROOT, target_is_directory=True)
     colcon_folders = ('build', 'install', 'log')
     already = {name for name in colcon_folders if (ROOT / name).exists()}
-    colcon = 'import sys; from colcon_core.command import main; sys.exit(main(argv=sys.argv[1:]))'
     build = subprocess.run(
-        [sys.executable, '-c', colcon, '--log-base', str(workspace / 'log'), 'build', *options],
+        [python, '-c', COLCON, '--log-base', str(workspace / 'log'), 'build', *options],
         cwd=workspace,
         env=clean_environment(),
         capture_output=True,
@@ -222,3 +326,39 @@ def test_colcon_build_installs_the_node_and_its_launch_and_parameter_files(tmp_p
     )
     assert launched.returncode == 1
     assert f'cannot read parameter file {missing}' in launched.stderr
+
+
+def test_pip_builds_a_wheel_from_pyproject_alone(tmp_path):
+    # `pip install .`: pyproject.toml (setuptools >= 77) without colcon's additions. Built from
+    # a copy of the tracked files so the build folders land outside the repository.
+    tracked = (
+        subprocess.run(
+            ['git', 'ls-files', '-z'], cwd=ROOT, capture_output=True, check=True, timeout=60
+        )
+        .stdout.decode()
+        .split('\0')
+    )
+    source = tmp_path / 'source'
+    for name in filter(None, tracked):
+        if (ROOT / name).is_file():
+            (source / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, source / name)
+    environment = {key: value for key, value in clean_environment().items() if key != 'COLCON'}
+    built = subprocess.run(
+        [sys.executable, '-m', 'pip', 'wheel', '--no-deps', '--no-build-isolation', '-q',
+         '-w', str(tmp_path / 'dist'), str(source)],
+        env=environment, capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stderr[-3000:]
+    (wheel,) = (tmp_path / 'dist').glob('scanfuse-*.whl')
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+        info = next(name for name in names if name.endswith('.dist-info/METADATA'))
+        metadata = archive.read(info).decode()
+        entry_points = archive.read(info.replace('METADATA', 'entry_points.txt')).decode()
+    assert 'scanfuse/py.typed' in names
+    assert 'License-Expression: Apache-2.0' in metadata
+    assert 'scanfuse = scanfuse.__main__:main' in entry_points
+    # The ROS executable and data files are colcon's business only.
+    assert 'scanfuse_node' not in entry_points
+    assert not any(name.endswith('scanfuse.launch.py') for name in names)

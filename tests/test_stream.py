@@ -341,3 +341,39 @@ def test_a_tf_loop_is_a_malformed_transform_and_no_scan_is_lost():
     stream.add_depth(NS, flat_depth(), NS)
     outs = stream.add_scan(lidar_scan(NS), 1, NS + 1) + stream.finish()
     assert [o.token for o in outs] == [1]
+
+
+def test_the_extrinsics_reported_follow_tf_that_arrives_after_the_first_choice():
+    # The node chooses extrinsics when CameraInfo arrives; /tf_static may come later. What
+    # it reports must then name the TF it has, not "TF has neither sensor frame".
+    from scanfuse.ros.messages import transforms_from_cdr
+    from tests.support.synthetic import Scene, scene_messages
+
+    (tf_static,) = [raw for topic, _, _, raw in scene_messages(Scene()) if topic == '/tf_static']
+    stream: FusionStream[int] = FusionStream(FusionConfig())
+    stream.extrinsics_for('laser', 'camera_depth_optical_frame')
+    assert stream.extrinsics_source == (
+        'parameters (TF has neither sensor frame: '
+        'no laser or camera_depth_optical_frame on /tf_static or /tf yet)'
+    )
+    stream.add_transforms(transforms_from_cdr(tf_static), static=True)
+    assert stream.extrinsics_source == 'TF (base_link -> laser, camera_depth_optical_frame)'
+
+
+def test_on_output_receives_every_scan_whichever_call_released_it():
+    # The README's case: pair_wait 0.05 s and each frame 40 ms after its scan. add_scan
+    # returns nothing (the scan waits for a later frame); add_depth and finish release them.
+    received: list = []
+    stream: FusionStream[int] = FusionStream(config(), pair_wait=0.05, on_output=received.append)
+    stream.add_camera_info(CAMERA)
+    returned = []
+    ms = 1_000_000
+    for step in range(4):
+        stamp = T_SCAN + step * 100 * ms
+        returned += stream.add_scan(lidar_scan(stamp), step, stamp)
+        returned += stream.add_depth(stamp + 20 * ms, depth_seen_at(T_SCAN), stamp + 40 * ms)
+    returned += stream.finish()
+    assert [output.token for output in received] == [0, 1, 2, 3]
+    # What the calls returned is the same outputs, in the same order.
+    assert [output.token for output in returned] == [0, 1, 2, 3]
+    assert all(a is b for a, b in zip(received, returned, strict=True))

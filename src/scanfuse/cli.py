@@ -70,6 +70,35 @@ def terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+INPUT_TOPICS = ('scan_topic', 'depth_topic', 'camera_info_topic')
+
+
+def topics_named_in(params: Path | None) -> dict[str, str]:
+    """The input topics a parameter file names: binding for a bag as for the node (one file,
+    one meaning), unlike the defaults, which only break ties among a bag's topics."""
+    if params is None:
+        return {}
+    from scanfuse.config import read_ros_params  # noqa: PLC0415
+
+    values = read_ros_params(params)
+    return {name: values[name] for name in INPUT_TOPICS if isinstance(values.get(name), str)}
+
+
+@contextmanager
+def topics_from_file(params: Path | None, named: dict[str, str]) -> Iterator[None]:
+    """A bag error about a topic the parameter file named says where the name came from."""
+    try:
+        yield
+    except ScanfuseError as err:
+        culprits = [name for name, topic in named.items() if f'topic {topic} ' in str(err)]
+        if not culprits:
+            raise
+        flags = {'scan_topic': '--scan', 'depth_topic': '--depth'}
+        flags['camera_info_topic'] = '--camera-info'
+        where = ', '.join(f'{name} in {params} ({flags[name]} overrides it)' for name in culprits)
+        raise type(err)(f'{err} [{where}]') from err
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option(help='folder for the report, figures and bag')] = Path(
@@ -122,6 +151,14 @@ def bag(
         int | None,
         typer.Option('--max-retries', help='with --cluster: runs again of a bag whose worker died'),
     ] = None,
+    intrinsics: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option(
+            metavar='FX FY CX CY',
+            help="the depth camera's focal lengths and principal point, pixels (CameraInfo's "
+            "K), for a bag without CameraInfo; they replace the bag's",
+        ),
+    ] = None,
 ) -> None:
     """Fuse a recorded bag: copy every message and add /scan_fused and /scan_depth.
 
@@ -131,29 +168,40 @@ def bag(
     """
     from scanfuse.config import FusionConfig  # noqa: PLC0415
     from scanfuse.progress import RichProgress  # noqa: PLC0415
-    from scanfuse.ros.bag import fuse_bag  # noqa: PLC0415
+    from scanfuse.ros.bag import Intrinsics, fuse_bag  # noqa: PLC0415
     from scanfuse.ros.batch import BagOptions, is_batch  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
+    named = topics_named_in(params)
+    camera = Intrinsics(*intrinsics) if intrinsics is not None else None
     if is_batch(input_bag):
         options = BagOptions(
-            config, scan, depth, camera_info, storage, overwrite, not no_depth_scan, require_tf
+            config,
+            scan or named.get('scan_topic'),
+            depth or named.get('depth_topic'),
+            camera_info or named.get('camera_info_topic'),
+            storage,
+            overwrite,
+            not no_depth_scan,
+            require_tf,
+            camera,
         )
         _fuse_many(input_bag, output, options, jobs, cluster, max_retries)
         return
-    with terminate_as_interrupt():
+    with terminate_as_interrupt(), topics_from_file(params, named):
         report = fuse_bag(
             input_bag,
             output,
             config=config,
-            scan_topic=scan,
-            depth_topic=depth,
-            camera_info_topic=camera_info,
+            scan_topic=scan or named.get('scan_topic'),
+            depth_topic=depth or named.get('depth_topic'),
+            camera_info_topic=camera_info or named.get('camera_info_topic'),
             storage=storage,
             overwrite=overwrite,
             write_depth_scan=not no_depth_scan,
             require_tf=require_tf,
             progress=RichProgress(unit='messages'),
+            intrinsics=camera,
         )
     Console().print(report.table())
 
@@ -183,6 +231,54 @@ def _fuse_many(
         raise BagError(msg)
 
 
+LISTEN_DEFAULT = '/scan_fused'
+
+
+@app.command()
+def play(
+    input_bag: Annotated[
+        Path,
+        typer.Argument(metavar='BAG', help='ROS 2 bag (folder, .db3, .mcap) or ROS 1 .bag'),
+    ],
+    rate: Annotated[float, typer.Option(help='speed: 2 plays twice as fast')] = 1.0,
+    loop: Annotated[bool, typer.Option('--loop', help='play again and again until Ctrl-C')] = False,
+    topic: Annotated[
+        list[str] | None, typer.Option('--topic', help='play only this topic (repeatable)')
+    ] = None,
+    start: Annotated[float, typer.Option(help='start this many seconds into the bag')] = 0.0,
+    listen: Annotated[
+        bool,
+        typer.Option(
+            '--listen',
+            help=f'wait for the node, then count what it publishes on {LISTEN_DEFAULT} '
+            '(rate, latency) and print it at the end',
+        ),
+    ] = False,
+    listen_to: Annotated[
+        list[str] | None,
+        typer.Option('--listen-to', help='listen to this topic instead (repeatable)'),
+    ] = None,
+    wait: Annotated[float, typer.Option(help='seconds to wait for the node with --listen')] = 30.0,
+) -> None:
+    """Publish a recording on ROS 2 topics at its recorded pace, each with its recorded QoS."""
+    try:
+        from scanfuse.ros.play import PlayOptions, play_bag  # noqa: PLC0415
+    except ModuleNotFoundError as err:
+        missing = (err.name or '').partition('.')[0]
+        if not ROS_MODULE.fullmatch(missing):
+            raise
+        report_error(f'{missing} is not installed; play needs ROS 2 for Python: {ROS_WAYS}')
+        raise typer.Exit(1) from None
+    listened = list(listen_to or ([LISTEN_DEFAULT] if listen else []))
+    options = PlayOptions(
+        rate=rate, loop=loop, topics=tuple(topic or ()), start=start, listen=listened, wait=wait
+    )
+    with terminate_as_interrupt():
+        report = play_bag(input_bag, options, say=lambda line: console.print(escape(line)))
+    for line in report.lines():
+        typer.echo(line)
+
+
 @app.command()
 def calibrate(
     input_bag: Annotated[
@@ -210,9 +306,15 @@ def calibrate(
     from scanfuse.ros.calibration import calibrate_bag, save_calibration  # noqa: PLC0415
 
     config = FusionConfig.from_ros_params(params) if params else FusionConfig()
-    found = calibrate_bag(
-        input_bag, config=config, scan_topic=scan, depth_topic=depth, camera_info_topic=camera_info
-    )
+    named = topics_named_in(params)
+    with topics_from_file(params, named):
+        found = calibrate_bag(
+            input_bag,
+            config=config,
+            scan_topic=scan or named.get('scan_topic'),
+            depth_topic=depth or named.get('depth_topic'),
+            camera_info_topic=camera_info or named.get('camera_info_topic'),
+        )
     output = Console()
     for table in found.tables():
         output.print(table)
@@ -299,16 +401,21 @@ def simulate(
 ) -> None:
     """Simulate a robot in an indoor world and record its sensors and ground truth as a bag.
 
-    The mounting comes from --params (the same file the node and `scanfuse bag` read), then
-    the flags; radians throughout.
+    The mounting and the topics come from --params (the same file the node and `scanfuse
+    bag` read), then the flags; radians throughout.
     """
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     if depth_backend != 'multiray':
         choose_headless_gl()
-    from scanfuse.sim.cli import mounting_from_params, run_simulate  # noqa: PLC0415
+    from scanfuse.sim.cli import (  # noqa: PLC0415
+        mounting_from_params,
+        run_simulate,
+        topics_from_params,
+    )
 
     mounting = mounting_from_params(params) if params is not None else {}
+    topics = topics_from_params(params) if params is not None else {}
     flags = {'lidar_height': lidar_height, 'camera_height': camera_height}
     flags['camera_pitch'] = camera_pitch
     mounting.update({name: value for name, value in flags.items() if value is not None})
@@ -330,6 +437,7 @@ def simulate(
             mounting=mounting,
             console=Console(),
             robot=robot,
+            topics=topics,
         )
 
 
@@ -403,7 +511,17 @@ def evaluate(
     )
 
 
-@app.command(context_settings={'allow_extra_args': True, 'ignore_unknown_options': True})
+# The node parses these itself (scanfuse.ros.node); listed here so --help shows them.
+NODE_OPTIONS_HELP = (
+    '--foxglove [PORT]: serve a Foxglove live view on PORT (default 8765; 0: any free port). '
+    '--foxglove-host HOST: the address it listens on (default 127.0.0.1: this machine only).'
+)
+
+
+@app.command(
+    context_settings={'allow_extra_args': True, 'ignore_unknown_options': True},
+    epilog=NODE_OPTIONS_HELP,
+)
 def node(
     ctx: typer.Context,
     params_file: Annotated[

@@ -6,6 +6,7 @@ processor and the simulator. Angles are radians, lengths metres (REP-103).
 
 from __future__ import annotations
 
+import difflib
 import math
 from enum import Enum
 from pathlib import Path
@@ -521,7 +522,7 @@ class FusionConfig(BaseModel):
             return cls.model_validate(values)
         except ValidationError as err:
             problems = '; '.join(
-                f'{".".join(str(p) for p in e["loc"]) or "config"}: {e["msg"]}'
+                f'{".".join(str(p) for p in e["loc"]) or "config"}: {e["msg"]}{_hint(e)}'
                 for e in err.errors()
             )
             msg = f'invalid scanfuse parameters: {problems}'
@@ -547,6 +548,30 @@ class FusionConfig(BaseModel):
         current = self.model_dump(exclude={'sources'})
         current.update(sources_to_params(self.sources))
         return self.from_dict({**current, **changes})
+
+
+_RANGE_ERRORS = frozenset({'less_than_equal', 'greater_than_equal', 'less_than', 'greater_than'})
+
+
+def _hint(error: Any) -> str:
+    """What the user most likely meant: the unit of an angle out of range (degrees given
+    where radians are asked), the parameter nearest to a name that is none."""
+    loc = error.get('loc') or ()
+    name = str(loc[0]) if loc else ''
+    if error.get('type') == 'extra_forbidden':
+        guess = difflib.get_close_matches(name, list(FusionConfig.model_fields), n=1, cutoff=0.6)
+        return f' (did you mean {guess[0]}?)' if guess else ''
+    field = FusionConfig.model_fields.get(name)
+    value = error.get('input')
+    described = field.description or '' if field is not None else ''
+    if (
+        error.get('type') in _RANGE_ERRORS
+        and 'radians' in described
+        and isinstance(value, int | float)
+        and not isinstance(value, bool)
+    ):
+        return f' (radians: {value:g} deg = {math.radians(value):.3f})'
+    return ''
 
 
 def _trigger_first(named: dict[str, Any], trigger: object) -> dict[str, Any]:

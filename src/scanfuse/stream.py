@@ -73,7 +73,7 @@ from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Callable, Iterable
 
     import numpy.typing as npt
 
@@ -242,11 +242,19 @@ class FusionStream(Generic[T]):
     """Pairs, compensates and fuses; see the module docstring for every rule."""
 
     def __init__(
-        self, config: FusionConfig, *, pair_wait: float = 0.0, release_when_silent: bool = True
+        self,
+        config: FusionConfig,
+        *,
+        pair_wait: float = 0.0,
+        release_when_silent: bool = True,
+        on_output: Callable[[StreamOutput[T]], None] | None = None,
     ) -> None:
         """`pair_wait`: seconds a scan waits for a frame after it. `release_when_silent`:
         a silent camera ends the wait at once (live); a recording, where a late frame may
-        still come, waits the whole `pair_wait`."""
+        still come, waits the whole `pair_wait`. `on_output` is handed every scan that
+        leaves, whichever call released it (`add_scan`, `add_depth`, `tick`, `finish`...):
+        the one place to collect output that cannot miss any."""
+        self.on_output = on_output
         if not pair_wait >= 0.0:
             msg = f'pair_wait must be >= 0 s (math.inf: wait for the next frame), got {pair_wait}'
             raise InputError(msg)
@@ -262,6 +270,7 @@ class FusionStream(Generic[T]):
         self._newest_scan_ns: int | None = None
         self._warned: set[str] = set()
         self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
+        self._extrinsics_key: tuple[str, str] | None = None  # the pair chosen last
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
         self.imu = ImuHistory()
@@ -584,6 +593,10 @@ class FusionStream(Generic[T]):
             ]
             for key in stale:
                 del self._extrinsics[key]
+            if self._extrinsics_key in stale:
+                # What the node reports must not name a TF tree that has changed since
+                # (a choice made before /tf_static arrived said "TF has neither frame").
+                self.extrinsics_for(*self._extrinsics_key)
 
     def tick(self, now_ns: int) -> list[StreamOutput[T]]:
         """Scans whose wait is over by `now_ns`."""
@@ -727,6 +740,13 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ one scan
 
     def _settle(self, pending: _Pending[T]) -> StreamOutput[T]:
+        """Every output leaves through here: handed to `on_output` and returned."""
+        output = self._settle_one(pending)
+        if self.on_output is not None:
+            self.on_output(output)
+        return output
+
+    def _settle_one(self, pending: _Pending[T]) -> StreamOutput[T]:
         """`_resolve`; a scan whose arithmetic fails is counted as malformed and passes
         through alone, so the scans released with it still leave."""
         try:
@@ -1280,6 +1300,7 @@ class FusionStream(Generic[T]):
         if choice is None:
             choice = self._extrinsics[key] = self._choose_extrinsics(*key)
         self.extrinsics_source = choice.source
+        self._extrinsics_key = key
         return choice
 
     def _choose_extrinsics(self, laser: str, camera: str) -> ExtrinsicsChoice:
@@ -1287,7 +1308,10 @@ class FusionStream(Generic[T]):
             return ExtrinsicsChoice(self._parameters, 'parameters (use_tf is false)')
         known = set(self.tf.frames)
         if laser not in known and camera not in known:
-            return ExtrinsicsChoice(self._parameters, 'parameters (TF has neither sensor frame)')
+            missing = f'no {laser} or {camera} on /tf_static or /tf yet'
+            return ExtrinsicsChoice(
+                self._parameters, f'parameters (TF has neither sensor frame: {missing})'
+            )
         base = frame_name(self.config.base_frame)
         try:
             extrinsics = Extrinsics(

@@ -242,6 +242,17 @@ def test_evaluate_quick_runs_and_round_trips(tmp_path):
     assert result.headline()['amr/lidar']['reversing_collisions'] == 1
     assert '## Two-LiDAR AMR, reversing' in report
     assert 'collisions when reversing' in report
+    # Every method is defined where its name appears: in report.md and under the terminal's
+    # table, which fits 80 columns with nothing cut off.
+    from scanfuse.evaluate.report import table
+
+    terminal = str(table(result))
+    assert max(len(line) for line in terminal.splitlines()) <= 80
+    assert '\u2026' not in terminal  # rich's ellipsis
+    flat = ' '.join(terminal.split())
+    for name, spec in METHODS.items():
+        assert f'- `{name}`: {spec.description}' in report
+        assert f'{name}: {spec.description}' in flat
 
 
 def test_unknown_turning_trial_is_refused():

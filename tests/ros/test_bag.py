@@ -217,8 +217,10 @@ def test_extrinsics_fall_back_to_parameters_with_a_warning(tmp_path, caplog):
     source = write_scene_bag(tmp_path / 'in', Scene(duration=0.3, publish_tf=False))
     with caplog.at_level(logging.WARNING, logger='scanfuse.ros.bag'):
         report = fuse_bag(source, tmp_path / 'out')
-    assert report.extrinsics_source == 'parameters (TF has neither sensor frame)'
-    assert 'extrinsics from the parameters (TF has neither sensor frame)' in caplog.text
+    # The scene's frames (tests/support/synthetic.py), named as missing.
+    why = 'no laser or camera_depth_optical_frame on /tf_static or /tf yet'
+    assert report.extrinsics_source == f'parameters (TF has neither sensor frame: {why})'
+    assert f'extrinsics from the parameters (TF has neither sensor frame: {why})' in caplog.text
 
 
 def test_tf_that_does_not_reach_base_frame_is_refused_naming_the_roots(tmp_path):

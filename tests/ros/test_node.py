@@ -9,7 +9,6 @@ the LiDAR's own 2.0 m (the wall). Time advances as the messages' log times.
 
 from __future__ import annotations
 
-import ast
 import logging
 import math
 
@@ -280,17 +279,6 @@ def test_example_parameter_file_names_declared_parameters():
         document = yaml.safe_load((EXAMPLES / name).read_text(encoding='utf-8'))
         params = document['scanfuse']['ros__parameters']
         assert set(params) <= declared, name
-
-
-def test_example_launch_file_names_declared_parameters():
-    declared = {spec.name for spec in all_param_specs(FusionConfig())}
-    tree = ast.parse((EXAMPLES / 'scanfuse.launch.py').read_text(encoding='utf-8'))
-    names = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Dict):
-            names |= {k.value for k in node.keys if isinstance(k, ast.Constant)}
-    assert names
-    assert names <= declared
 
 
 def test_repeated_camera_info_is_decoded_once_and_a_new_calibration_is_taken_up():

@@ -136,3 +136,29 @@ def test_bad_drops_are_refused():
         Drop('d', 'hole', (1.0, 2.0, 0.0, 1.0), -0.1)
     with pytest.raises(SimError, match='at least one step'):
         Drop('d', 'stairs', (1.0, 2.0, 0.0, 1.0), 0.3, steps=0)
+
+
+def test_a_recording_reports_when_the_robot_fell(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    from scanfuse.ros.messages import typestore
+    from scanfuse.sim.recording import record
+
+    def drive(_):
+        return (0.35, 0.0)
+
+    fell = record(SimConfig(world='ledge', **LOW), drive, 8.0, tmp_path / 'ledge.mcap')
+    assert fell.fell_at is not None
+    # The recorded ground truth: the base sinks below where it started by FALL_DEPTH then.
+    store = typestore()
+    with AnyReader([tmp_path / 'ledge.mcap']) as reader:
+        wanted = [c for c in reader.connections if c.topic == '/ground_truth/pose']
+        poses = [
+            (log_time, store.deserialize_cdr(raw, c.msgtype).pose.position.z)
+            for c, log_time, raw in reader.messages(wanted)
+        ]
+    first_time, first_z = poses[0]
+    sunk = next(time for time, z in poses if first_z - z > FALL_DEPTH)
+    assert (sunk - first_time) / 1e9 == pytest.approx(fell.fell_at, abs=0.25)
+    stayed = record(SimConfig(world='room', **LOW), drive, 3.0, tmp_path / 'room.mcap')
+    assert stayed.fell_at is None

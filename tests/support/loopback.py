@@ -3,6 +3,7 @@
     python -m tests.support.loopback play BAG [--garbage-at S]   replay a bag at real time
     python -m tests.support.loopback record OUT.mcap --topic T... --duration S [--ready FILE]
     python -m tests.support.loopback set-param NAME VALUE --out RESULT.json
+    python -m tests.support.loopback get-params NAME... --out RESULT.json
     python -m tests.support.loopback flood --seconds S [--done FILE]   malformed messages
     python -m tests.support.loopback relay FROM TO      republish LaserScan bytes (baseline)
     python -m tests.support.loopback qos-probe --out RESULT.json   endpoints of incompatible QoS
@@ -477,6 +478,33 @@ def set_param(
     return 0
 
 
+def get_params(names: Sequence[str], out: Path, *, node_name: str = 'scanfuse') -> int:
+    """`ros2 param get` through the node's get_parameters service; {name: value} as JSON."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    node = rclpy.create_node('scanfuse_param_getter')
+    client = node.create_client(GetParameters, f'/{node_name}/get_parameters')
+    if not client.wait_for_service(timeout_sec=DISCOVERY_TIMEOUT_S * 3):
+        print('get-params: no get_parameters service', file=sys.stderr)
+        return 2
+    request = GetParameters.Request()
+    request.names = list(names)
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=DISCOVERY_TIMEOUT_S)
+    result = future.result()
+    if result is None:
+        print('get-params: no answer', file=sys.stderr)
+        return 2
+    values = {
+        name: parameter_value_to_python(value)
+        for name, value in zip(names, result.values, strict=True)
+    }
+    out.write_text(json.dumps(values), encoding='utf-8')
+    node.destroy_node()
+    return 0
+
+
 def _parse_value(text: str) -> Any:
     """A parameter value from text as `ros2 param set` reads it (YAML scalars)."""
     import yaml
@@ -484,7 +512,7 @@ def _parse_value(text: str) -> Any:
     return yaml.safe_load(text)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:  # noqa: PLR0911 - one return per command
     parser = argparse.ArgumentParser(prog='python -m tests.support.loopback')
     commands = parser.add_subparsers(dest='command', required=True)
     play_cmd = commands.add_parser('play')
@@ -509,6 +537,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     relay_cmd.add_argument('target')
     probe_cmd = commands.add_parser('qos-probe')
     probe_cmd.add_argument('--out', type=Path, required=True)
+    get_cmd = commands.add_parser('get-params')
+    get_cmd.add_argument('names', nargs='+')
+    get_cmd.add_argument('--out', type=Path, required=True)
     param_cmd = commands.add_parser('set-param')
     param_cmd.add_argument('name')
     param_cmd.add_argument('value')
@@ -538,6 +569,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 expect_publisher=args.expect_publisher,
                 drain_until_level=args.drain_until_level,
             )
+        if args.command == 'get-params':
+            return get_params(args.names, args.out)
         return set_param(args.name, args.value, args.out, go=args.go, after=args.after)
     finally:
         if rclpy.utilities.ok():

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -171,6 +172,19 @@ def core_demo(out: Path, console: Console) -> Path:
 
 DEMO_CLUTTER_WORLDS = 2
 BAG_DURATION = 8.0  # simulated seconds of the recorded drive
+RECORDING_NAME = 'bookshelf_drive.mcap'
+
+
+def live_commands(recording: Path) -> list[str]:
+    """The two commands, each in its own terminal, that run the live node on `recording`:
+    `play` waits for the node, publishes the drive and counts the node's /scan_fused.
+
+    They name the `scanfuse` that runs the demo (`make demo`'s .venv/bin/scanfuse), so they
+    work as printed without activating the environment.
+    """
+    beside = Path(sys.executable).parent / 'scanfuse'
+    command = os.path.relpath(beside) if beside.is_file() else 'scanfuse'
+    return [f'{command} node', f'{command} play {recording} --listen']
 
 
 def record_demo_bag(out: Path, console: Console) -> Path:
@@ -180,7 +194,7 @@ def record_demo_bag(out: Path, console: Console) -> Path:
     from scanfuse.sim.recording import record  # noqa: PLC0415
     from scanfuse.sim.simulation import SimConfig  # noqa: PLC0415
 
-    recorded = out / 'bookshelf_drive.mcap'
+    recorded = out / RECORDING_NAME
     fused = out / 'bookshelf_fused'
     for stale in (recorded, fused):
         if stale.is_dir():
@@ -226,4 +240,8 @@ def run_demo(out: Path, console: Console) -> Path:
     console.print(f'figures: [bold]{evaluation_dir}[/] (scans_*.png, maps_*.png, metrics.png)')
     console.print(f'bag:     [bold]{bag}[/] (open in Foxglove: /scan, /scan_fused, depth, /tf)')
     console.print(f'core on one frame: [bold]{core_figure}[/]')
+    recording = out / RECORDING_NAME
+    console.print('the live node on the recorded drive (two terminals, ROS 2 wheels installed):')
+    for command in live_commands(recording):
+        console.print(f'  [bold]{command}[/]')
     return evaluation_dir / 'report.md'

@@ -414,11 +414,8 @@ def _profile(
                     below += 1
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
-                # points) the ground does not jump to stray points far beyond it. But from
-                # the camera's foot to the first floor it sees, the whole run: a ramp that
-                # starts under the robot's front rises (or falls) all the way.
-                run = centre - at if at == 0.0 else min(max(centre - at, 0.0), bin_size)
-                reach = tan_slope * run
+                # points) the ground does not jump to stray points far beyond it.
+                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
                 top = ground if above >= max(2, found // 4) else ground + reach

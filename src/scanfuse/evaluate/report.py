@@ -11,6 +11,7 @@ from scanfuse.evaluate import figures
 from scanfuse.evaluate.mapping import FREE_THRESH, OCCUPIED_THRESH, GridSpec, OccupancyGrid
 from scanfuse.evaluate.metrics import TOLERANCE_ABSOLUTE, TOLERANCE_RELATIVE
 from scanfuse.sim.robot import FALL_DEPTH
+from scanfuse.tables import TextTable
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -80,12 +81,38 @@ HEADERS = [
 ]
 
 
+# The terminal's headers: short enough that the table fits 80 columns (report.md has HEADERS).
+SHORT_HEADERS = [
+    'method',
+    'recall in view',
+    'recall all-around',
+    'false obstacles',
+    'median error (m)',
+    'collisions',
+    'falls',
+    'goals',
+]
+
+
+def method_definitions(result: EvaluationResult) -> list[str]:
+    """`name: what it is` for every method in the result (each table row's meaning)."""
+    return [f'{name}: {method.description}' for name, method in result.methods.items()]
+
+
 def table(result: EvaluationResult) -> Table:
-    """The headline numbers as a rich table for the terminal."""
-    view = Table(title='scanfuse evaluation: headline numbers')
-    for header in HEADERS:
+    """The headline numbers for the terminal: within 80 columns (headers wrap, never cut),
+    every method defined under it."""
+    view = TextTable(
+        title='scanfuse evaluation: headline numbers',
+        caption='\n'.join(method_definitions(result)),
+        caption_justify='left',
+    )
+    for header in SHORT_HEADERS:
         view.add_column(
-            header, justify='left' if header == 'method' else 'right', no_wrap=header == 'method'
+            header,
+            justify='left' if header == 'method' else 'right',
+            no_wrap=header == 'method',
+            overflow='fold',
         )
     for row in headline_rows(result):
         style = 'bold' if row[0] == 'obstacle' else None
@@ -450,6 +477,20 @@ def markdown(result: EvaluationResult) -> str:
         '## Headline',
         '',
         _markdown_table(HEADERS, headline_rows(result)),
+        '',
+        'Methods (every name in this report):',
+        '',
+        *(
+            f'- `{line.split(": ", 1)[0]}`: {line.split(": ", 1)[1]}'
+            for line in method_definitions(result)
+        ),
+        '',
+        (
+            'The `obstacle-nearest` variants keep the nearest point of each slot; `obstacle` keeps '
+            'the farthest of the nearest points that agree (`obstacle_min_points`), so a lone '
+            'noisy pixel is outvoted: a nearest-point method can find more low-obstacle slots '
+            'in view and pays in false obstacles (compare their columns).'
+        ),
         '',
         (
             f'Targets for `obstacle`: recall >= {HEADLINE_TARGETS["recall"]}, false obstacles '

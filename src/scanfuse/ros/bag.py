@@ -31,7 +31,6 @@ from typing import TYPE_CHECKING, Any
 import apsw
 import numpy as np
 import yaml
-from rich.table import Table
 from rosbags.convert.converter import (
     LATCH,
     STATIC_MSGTYPE_RENAMES,
@@ -46,6 +45,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
+from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
 from scanfuse.extras import primary_camera_config
@@ -74,6 +74,7 @@ from scanfuse.ros.messages import (
 )
 from scanfuse.ros.staging import STAGING_OVERHEAD, Staging, output_error
 from scanfuse.stream import FusionStream
+from scanfuse.tables import TextTable
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -81,7 +82,6 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    from scanfuse.camera import CameraModel
     from scanfuse.stream import StreamOutput
 
 logger = logging.getLogger(__name__)
@@ -115,6 +115,28 @@ class Storage(str, Enum):
 
 
 _PLUGINS = {Storage.MCAP: StoragePlugin.MCAP, Storage.SQLITE3: StoragePlugin.SQLITE3}
+
+
+# The simulator's ground truth beside a sensor (/scan_truth beside /scan, /ground_truth/...):
+# evaluation data a recording carries, never a sensor to fuse.
+def is_ground_truth(topic: str) -> bool:
+    return topic.endswith('_truth') or topic.startswith('/ground_truth/')
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """A pinhole depth camera's focal lengths and principal point, pixels (CameraInfo's K)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def describe(self) -> str:
+        return f'fx {self.fx:g}, fy {self.fy:g}, cx {self.cx:g}, cy {self.cy:g}'
+
+
+GIVEN_INTRINSICS = '(intrinsics given)'
 
 
 @dataclass(frozen=True)
@@ -169,10 +191,10 @@ class BagReport:
         """Seconds of recording processed per second of wall time."""
         return self.bag_duration_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
-    def table(self) -> Table:
-        table = Table(title=f'scanfuse bag: {self.output}', show_header=False)
+    def table(self) -> TextTable:
+        table = TextTable(title=f'scanfuse bag: {self.output}', show_header=False)
         table.add_column('what')
-        table.add_column('value', justify='right')
+        table.add_column('value', justify='right', overflow='fold')
         rows = [
             ('input', str(self.input)),
             ('topics', self._topics()),
@@ -228,11 +250,13 @@ def fuse_bag(
     distro: Distro = Distro.HUMBLE,
     progress: Progress | None = None,
     strict: bool = False,
+    intrinsics: Intrinsics | None = None,
 ) -> BagReport:
     """Fuse the LiDAR scans of a recorded bag with its depth images into a new ROS 2 bag.
 
     A malformed message is copied through when it can be, skipped by the fusion and listed in
-    the report; with `strict` it stops the run with an error naming it.
+    the report; with `strict` it stops the run with an error naming it. `intrinsics` stand
+    for the depth camera's CameraInfo (a bag recorded without it, or with a wrong one).
     """
     config = config or FusionConfig()
     source, target = Path(input), Path(output)
@@ -244,6 +268,7 @@ def fuse_bag(
     with Staging(target) as staging:
         with _open_reader(source, distro) as reader:
             job = _BagJob(reader, config, distro, write_depth_scan=write_depth_scan)
+            job.intrinsics = intrinsics
             with _located(job), _writing(target):
                 topics = job.choose_topics(scan_topic, depth_topic, camera_info_topic)
                 job.read_static(require_tf=require_tf)
@@ -582,57 +607,19 @@ class MalformedMessage:
         return f'{self.where}: {self.reason}'
 
 
-@dataclass(frozen=True)
-class _Lidar:
-    """What the stream hands back with a scan: its CDR and log time."""
+class CdrConverter:
+    """A bag's messages as ROS 2 CDR: unchanged for ROS 2 bags, converted for ROS 1."""
 
-    raw: bytes
-    log_time: int
-
-
-class _BagJob:
-    """One run of `fuse_bag` over an open reader."""
-
-    def __init__(
-        self, reader: AnyReader, config: FusionConfig, distro: Distro, *, write_depth_scan: bool
-    ) -> None:
+    def __init__(self, reader: AnyReader, store: Typestore) -> None:
         self.reader = reader
-        self.config = config
-        self.write_depth_scan = write_depth_scan
-        self.source = Path(str(reader.paths[0]))
-        # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
-        self.store = reader.typestore if reader.is2 else _fresh_store(distro)
-        if LASER_SCAN not in self.store.fielddefs:
-            # A bag without a LiDAR (a camera-only robot) has no LaserScan definition of its
-            # own for the scans written: the distribution's, with what it uses.
-            known = get_typestore(_DISTRO_STORES[Distro(distro)]).fielddefs
-            self.store.register({k: v for k, v in known.items() if k not in self.store.fielddefs})
-        self.topics_types = {
-            name: info.msgtype or '?'
-            for name, info in _guard_read(self.source, lambda: reader.topics).items()
-        }
-        self.duration_ns = reader.duration if reader.message_count else 0
+        self.store = store  # ROS 2 types; ROS 1 types ROS 2 lacks are registered into it
         self.converters: dict[str, Callable[[bytes], bytes]] = {}
-        self.choice: TopicChoice | None = None
-        self.first_camera: CameraModel | None = None
-        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
-        # or until no frame logged up to REORDER_S late can still be near enough.
-        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
-        self.stream: FusionStream[_Lidar] = FusionStream(
-            config, pair_wait=pair_wait, release_when_silent=False
-        )
-        self.scan_frame = ''
-        self.depth_frame = ''
-        # The message being handled, so errors can name it (see `_located`).
-        self.position: MessagePosition | None = None
-
-    # ------------------------------------------------------------ reading helpers
 
     def msgtype(self, connection: Connection) -> str:
+        """The ROS 2 name of the connection's type (ROS 1's tf/tfMessage is tf2_msgs')."""
         return STATIC_MSGTYPE_RENAMES.get(connection.msgtype, connection.msgtype)
 
     def to_cdr(self, connection: Connection, raw: bytes) -> bytes:
-        """The message as ROS 2 CDR: unchanged for ROS 2 bags, converted for ROS 1."""
         if self.reader.is2:
             return raw
         convert = self.converters.get(connection.msgtype)
@@ -658,6 +645,69 @@ class _BagJob:
             return lambda raw: bytes(self.store.ros1_to_cdr(raw, dst_type))
         migrate = partial(migrate_bytes, self.reader.typestore, self.store, src_type, dst_type, {})
         return lambda raw: bytes(migrate(raw, src_is2=False, dst_is2=True))
+
+
+def open_bag(source: Path, distro: Distro = Distro.HUMBLE) -> _ReaderScope:
+    """`AnyReader` over `source` as a context; a damaged bag's failure is a BagError."""
+    return _ReaderScope(source, distro)
+
+
+def fresh_store(distro: Distro = Distro.HUMBLE) -> Typestore:
+    return _fresh_store(distro)
+
+
+@dataclass(frozen=True)
+class _Lidar:
+    """What the stream hands back with a scan: its CDR and log time."""
+
+    raw: bytes
+    log_time: int
+
+
+class _BagJob:
+    """One run of `fuse_bag` over an open reader."""
+
+    def __init__(
+        self, reader: AnyReader, config: FusionConfig, distro: Distro, *, write_depth_scan: bool
+    ) -> None:
+        self.reader = reader
+        self.config = config
+        self.write_depth_scan = write_depth_scan
+        self.source = Path(str(reader.paths[0]))
+        # ROS 2 bags are decoded with their own definitions; ROS 1 messages become CDR first.
+        self.store = reader.typestore if reader.is2 else _fresh_store(distro)
+        if LASER_SCAN not in self.store.fielddefs:
+            # A bag without a LiDAR (a camera-only robot) has no LaserScan definition of its
+            # own for the scans written: the distribution's, with what it uses.
+            known = get_typestore(_DISTRO_STORES[Distro(distro)]).fielddefs
+            self.store.register({k: v for k, v in known.items() if k not in self.store.fielddefs})
+        self.cdr = CdrConverter(reader, self.store)
+        self.topics_types = {
+            name: info.msgtype or '?'
+            for name, info in _guard_read(self.source, lambda: reader.topics).items()
+        }
+        self.duration_ns = reader.duration if reader.message_count else 0
+        self.choice: TopicChoice | None = None
+        self.intrinsics: Intrinsics | None = None
+        self.first_camera: CameraModel | None = None
+        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
+        # or until no frame logged up to REORDER_S late can still be near enough.
+        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
+        self.stream: FusionStream[_Lidar] = FusionStream(
+            config, pair_wait=pair_wait, release_when_silent=False
+        )
+        self.scan_frame = ''
+        self.depth_frame = ''
+        # The message being handled, so errors can name it (see `_located`).
+        self.position: MessagePosition | None = None
+
+    # ------------------------------------------------------------ reading helpers
+
+    def msgtype(self, connection: Connection) -> str:
+        return self.cdr.msgtype(connection)
+
+    def to_cdr(self, connection: Connection, raw: bytes) -> bytes:
+        return self.cdr.to_cdr(connection, raw)
 
     def decode(self, connection: Connection, raw: bytes) -> Any:
         return deserialize(self.to_cdr(connection, raw), self.msgtype(connection), self.store)
@@ -723,9 +773,12 @@ class _BagJob:
             info_default = (
                 sibling if sibling in self.topics_types else self.config.camera_info_topic
             )
-            info_topic = self._choose(
-                camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
-            )
+            if self.intrinsics is not None and camera_info is None:
+                info_topic = GIVEN_INTRINSICS  # the bag's CameraInfo, if any, is not used
+            else:
+                info_topic = self._choose(
+                    camera_info, info_default, CAMERA_INFO, '--camera-info', 'CameraInfo'
+                )
         sources = self._named_sources()
         used = {scan_topic, depth_topic, info_topic, *(t for t, _, _ in sources)}
         sensor_types = {LASER_SCAN, POINT_CLOUD} | ({IMAGE} if depth_topics else set())
@@ -733,7 +786,10 @@ class _BagJob:
             sorted(
                 (name, t)
                 for name, t in self.topics_types.items()
-                if t in sensor_types and name not in used and (t != IMAGE or name in depth_topics)
+                if t in sensor_types
+                and name not in used
+                and (t != IMAGE or name in depth_topics)
+                and not is_ground_truth(name)
             )
         )
         imu_topic = self._choose_imu()
@@ -817,9 +873,14 @@ class _BagJob:
         if len(candidates) == 1:
             return next(iter(candidates))
         if not candidates:
+            instead = (
+                "; give the camera's intrinsics instead: --intrinsics FX FY CX CY"
+                if msgtype == CAMERA_INFO
+                else ''
+            )
             msg = (
                 f'no {kind} topic ({msgtype}) in bag {self.source}; '
-                f'topics: {describe_topics(self.topics_types)}'
+                f'topics: {describe_topics(self.topics_types)}{instead}'
             )
             raise BagError(msg)
         msg = (
@@ -868,22 +929,34 @@ class _BagJob:
         """Read the first CameraInfo, the sensors' frames and TF; choose the extrinsics."""
         assert self.choice is not None
         choice: TopicChoice = self.choice
-        info = self.first_message(choice.camera_info) if choice.camera_info else None
-        if choice.camera_info and info is None:
-            msg = f'CameraInfo topic {choice.camera_info} has no messages; cannot fuse'
-            raise BagError(msg)
-        self.first_camera = None if info is None else camera_from_msg(info)
         scan = self.first_message(choice.scan) if choice.scan else None
         depth = self.first_message(choice.depth) if choice.depth else None
         for topic, first in ((choice.scan, scan), (choice.depth, depth)):
             if topic and first is None:
                 msg = f'topic {topic} has no messages; cannot fuse'
                 raise BagError(msg)
+        info_frame = ''
+        if self.intrinsics is not None and depth is not None:
+            given = self.intrinsics
+            self.first_camera = CameraModel.from_intrinsics(
+                int(depth.width), int(depth.height), given.fx, given.fy, given.cx, given.cy,
+                frame_id=str(depth.header.frame_id),
+            )  # fmt: skip
+        else:
+            info = self.first_message(choice.camera_info) if choice.camera_info else None
+            if choice.camera_info and info is None:
+                msg = (
+                    f'CameraInfo topic {choice.camera_info} has no messages; cannot fuse '
+                    "(give the camera's intrinsics instead: --intrinsics FX FY CX CY)"
+                )
+                raise BagError(msg)
+            self.first_camera = None if info is None else camera_from_msg(info)
+            info_frame = '' if info is None else str(info.header.frame_id)
         self._read_mounting()
-        if scan is None or depth is None or info is None:
+        if scan is None or depth is None or self.first_camera is None:
             return  # one sensor: no pair whose extrinsics to check
         self.scan_frame = frame_name(str(scan.header.frame_id))
-        self.depth_frame = frame_name(str(depth.header.frame_id) or info.header.frame_id)
+        self.depth_frame = frame_name(str(depth.header.frame_id) or info_frame)
         extrinsics = self.stream.extrinsics_for(self.scan_frame, self.depth_frame)
         if extrinsics.extrinsics is None:
             raise TransformError(extrinsics.source)

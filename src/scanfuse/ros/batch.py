@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from scanfuse.cluster import Backend
     from scanfuse.config import FusionConfig
     from scanfuse.progress import Progress
+    from scanfuse.ros.bag import Intrinsics
 
 BAG_SUFFIXES = ('.mcap', '.db3', '.bag')
 GLOB_CHARACTERS = frozenset('*?[')
@@ -97,6 +98,7 @@ class BagOptions:
     overwrite: bool = False
     write_depth_scan: bool = True
     require_tf: bool = False
+    intrinsics: Intrinsics | None = None  # the depth camera's, for bags without CameraInfo
 
 
 @dataclass(frozen=True)
@@ -134,6 +136,7 @@ def fuse_one(source: Path, target: Path, options: BagOptions) -> BagOutcome:
             overwrite=options.overwrite,
             write_depth_scan=options.write_depth_scan,
             require_tf=options.require_tf,
+            intrinsics=options.intrinsics,
         )
     # One bag's failure of any kind is listed and the batch goes on (a bag from the field
     # may break a reader in ways no error of ours names).

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+import re
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -54,8 +56,9 @@ from rclpy.utilities import ok, remove_ros_args
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, PointCloud2
 
 from scanfuse.config import NODE_NAME, FusionConfig, read_ros_params
-from scanfuse.errors import ScanfuseError
-from scanfuse.ros.live import LiveFusion
+from scanfuse.errors import ConfigError, ScanfuseError
+from scanfuse.ros.graph import SilentInput, override_names, silent_inputs, unknown_names_message
+from scanfuse.ros.live import Level, LiveFusion
 from scanfuse.ros.live_view import (
     DEFAULT_HOST,
     DEFAULT_PORT,
@@ -63,6 +66,7 @@ from scanfuse.ros.live_view import (
     LiveView,
     make_view,
 )
+from scanfuse.ros.messages import CAMERA_INFO, IMAGE, LASER_SCAN
 from scanfuse.ros.params import (
     Kind,
     NodeSettings,
@@ -105,6 +109,9 @@ TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100)
 ODOMETRY_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT
 )
+# An input with no publisher this long after start-up is reported (discovery takes seconds).
+SILENT_INPUT_GRACE_S = 5.0
+GRAPH_PERIOD_S = 2.0  # how often the diagnostics timer asks the graph for publishers
 # Fire just after a deadline, so `now >= deadline` holds when the timer runs.
 DEADLINE_SLACK_S = 0.0005
 _ROS_TYPES = {
@@ -176,6 +183,7 @@ class ScanfuseNode:
         *,
         foxglove_port: int | None = None,
         foxglove_host: str = DEFAULT_HOST,
+        overrides: Sequence[str] = (),
     ) -> None:
         self.node = rclpy.create_node(NODE_NAME)
         self.rosout = self.node.get_logger()
@@ -183,6 +191,11 @@ class ScanfuseNode:
         for spec in self.specs.values():
             self.node.declare_parameter(spec.name, spec.default, descriptor(spec))
         self.specs.update(self._declare_sources(defaults))
+        # rclpy keeps a -p override of an undeclared name unused and says nothing; a typo in
+        # the parameter file is refused, so the same typo on the command line is too.
+        unknown = [name for name in overrides if not self.node.has_parameter(name)]
+        if unknown:
+            raise ConfigError(unknown_names_message(unknown, self.specs, 'given with -p'))
         values = self.parameter_values()
         config = config_from_ros(values)
         settings = settings_from_ros(values)
@@ -195,17 +208,34 @@ class ScanfuseNode:
         self.node.add_on_set_parameters_callback(self._on_set_parameters)
         sensor_qos = qos_profile_sensor_data
         # No LiDAR (scan_topic empty) or no camera (depth_topic empty): nothing to hear there.
+        subscribed = []
         if config.has_lidar:
-            self.node.create_subscription(
-                LaserScan, config.scan_topic, self._on_scan, sensor_qos, raw=True
+            subscribed.append(
+                (LaserScan, LASER_SCAN, 'scan_topic', config.scan_topic, self._on_scan)
             )
         if config.has_camera:
-            self.node.create_subscription(
-                Image, config.depth_topic, self._on_depth, sensor_qos, raw=True
+            subscribed.append((Image, IMAGE, 'depth_topic', config.depth_topic, self._on_depth))
+            subscribed.append(
+                (
+                    CameraInfo,
+                    CAMERA_INFO,
+                    'camera_info_topic',
+                    config.camera_info_topic,
+                    self._on_camera_info,
+                )
             )
-            self.node.create_subscription(
-                CameraInfo, config.camera_info_topic, self._on_camera_info, sensor_qos, raw=True
+        # Resolved names (after remapping) -> (type, parameter), watched for publishers.
+        self.inputs: dict[str, tuple[str, str]] = {}
+        for kind, msgtype, parameter, topic, callback in subscribed:
+            subscription = self.node.create_subscription(
+                kind, topic, callback, sensor_qos, raw=True
             )
+            self.inputs[subscription.topic_name] = (msgtype, parameter)
+        self.started = time.monotonic()
+        self.silent_since: dict[str, float] = {}
+        self.silent_reported: dict[str, str] = {}
+        self.graph_checked = -math.inf
+        self.silent_due: list[SilentInput] = []
         self._subscribe_sources(config, sensor_qos)
         self.odometry_source = self._subscribe_odometry(config.odom_topic)
         if config.imu_topic:
@@ -482,16 +512,54 @@ class ScanfuseNode:
     # ------------------------------------------------------------ diagnostics
 
     def _publish_diagnostics(self) -> None:
-        health = self.live.health(time.monotonic())
-        self.diagnostics_pub.publish(self.diagnostics_message(health))
+        now = time.monotonic()
+        health = self.live.health(now)
+        self.diagnostics_pub.publish(self.diagnostics_message(health, self.silent_inputs(now)))
 
-    def diagnostics_message(self, health: Health) -> Any:
+    def silent_inputs(self, now: float) -> list[SilentInput]:
+        """Inputs nothing has published for SILENT_INPUT_GRACE_S, each logged once (again when
+        what could stand in for it changes). The graph is asked every GRAPH_PERIOD_S."""
+        if now - self.graph_checked < GRAPH_PERIOD_S:
+            return self.silent_due
+        self.graph_checked = now
+        self.silent_due = self._silent_inputs(now)
+        return self.silent_due
+
+    def _silent_inputs(self, now: float) -> list[SilentInput]:
+        graph = self.node.get_topic_names_and_types()
+        publishers = {name: self.node.count_publishers(name) for name, _ in graph}
+        publishers.update({name: self.node.count_publishers(name) for name in self.inputs})
+        found = silent_inputs(self.inputs, publishers, graph)
+        silent = {item.topic for item in found}
+        self.silent_since = {topic: self.silent_since.get(topic, now) for topic in silent}
+        due = [
+            item
+            for item in found
+            if now - max(self.silent_since[item.topic], self.started) >= SILENT_INPUT_GRACE_S
+        ]
+        for item in due:
+            text = item.describe()
+            if self.silent_reported.get(item.topic) != text:
+                self.silent_reported[item.topic] = text
+                self.rosout.warning(text)
+        self.silent_reported = {
+            topic: text for topic, text in self.silent_reported.items() if topic in silent
+        }
+        return due
+
+    def diagnostics_message(self, health: Health, silent: Sequence[SilentInput] = ()) -> Any:
+        level, message, values = health.level, health.message, dict(health.values)
+        if silent:
+            # The missing publisher explains the rest (no CameraInfo, LiDAR passed through).
+            level = max(level, Level.WARN)
+            message = '; '.join(item.describe() for item in silent) + f' ({message})'
+            values.update({f'no publisher: {item.topic}': item.describe() for item in silent})
         status = DiagnosticStatus(
-            level=bytes([int(health.level)]),
+            level=bytes([int(level)]),
             name=f'{self.node.get_name()}: fusion',
-            message=health.message,
+            message=message,
             hardware_id=self.node.get_fully_qualified_name(),
-            values=[KeyValue(key=key, value=value) for key, value in health.values.items()],
+            values=[KeyValue(key=key, value=value) for key, value in values.items()],
         )
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.node.get_clock().now().to_msg()
@@ -534,10 +602,25 @@ def _one_line(err: Exception) -> str:
     return text.split(', at /', 1)[0]  # rcl appends ", at /path/file.c:LINE" per frame
 
 
+_OUT_OF_RANGE = re.compile(r'Parameter (\w+) out of range.*value: (-?[\d.eE+-]+)')
+
+
+def _unit_hint(message: str) -> str:
+    """An angle out of range was most likely given in degrees: its value in radians."""
+    found = _OUT_OF_RANGE.search(message)
+    if found is None:
+        return ''
+    field = FusionConfig.model_fields.get(found.group(1))
+    if field is None or 'radians' not in (field.description or ''):
+        return ''
+    value = float(found.group(2))
+    return f' (radians: {value:g} deg = {math.radians(value):.3f})'
+
+
 def _start_error(err: Exception) -> int:
     if isinstance(err, ParameterException):
         # rclpy checks -p overrides against the descriptors' ranges and types at declaration.
-        hint = 'fix the -p override or the parameter file'
+        hint = 'fix the -p override or the parameter file' + _unit_hint(str(err))
     elif isinstance(err, NameValidationException):
         hint = 'fix the topic name in the -p override or the parameter file'
     elif isinstance(err, rclpy_implementation.RCLInvalidROSArgsError):
@@ -576,6 +659,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 settings,
                 foxglove_port=options.foxglove,
                 foxglove_host=options.foxglove_host,
+                overrides=override_names(argv, NODE_NAME),
             )
         except _START_ERRORS as err:
             return _start_error(err)

@@ -50,6 +50,16 @@ def mounting_from_params(path: Path) -> dict[str, float]:
     return robot_mounting(FusionConfig.from_ros_params(path))
 
 
+def topics_from_params(path: Path) -> dict[str, str]:
+    """The input topics of a parameter file, for a one-LiDAR, one-camera robot's recording."""
+    config = FusionConfig.from_ros_params(path)
+    return {
+        'scan_topic': config.scan_topic,
+        'depth_topic': config.depth_topic,
+        'camera_info_topic': config.camera_info_topic,
+    }
+
+
 def run_simulate(
     *,
     out: Path,
@@ -68,6 +78,7 @@ def run_simulate(
     mounting: dict[str, float] | None = None,
     depth_latency: float = 0.040,
     robot: str = 'default',
+    topics: dict[str, str] | None = None,
 ) -> RecordSummary:
     """Record one run of the robot called `robot` (`ROBOTS`); `mounting` changes its first
     sensors' poses (metres, radians); `lidar` None: the robot's own LiDAR model."""
@@ -75,7 +86,10 @@ def run_simulate(
         msg = f'--duration must be more than 0 and at most {MAX_DURATION:g} s, got {duration}'
         raise SimError(msg)
     changes: dict[str, Any] = dict(mounting or {})
-    spec = replace(robot_spec(robot), **changes)
+    base = robot_spec(robot)
+    if not base.several:  # a robot of named sources keeps examples/scanfuse_multi.yaml's topics
+        changes.update(topics or {})
+    spec = replace(base, **changes)
     config = SimConfig(
         world=world,
         seed=seed,
@@ -110,7 +124,9 @@ def summary_table(summary: RecordSummary, snapshot: Path | None) -> Table:
     table.add_row('simulated time', f'{summary.sim_time:.2f} s')
     table.add_row('wall time', f'{summary.wall_time:.2f} s')
     table.add_row('real-time factor', f'{summary.real_time_factor:.2f}')
-    table.add_row('robot-obstacle contacts', str(summary.contacts))
+    table.add_row('contact samples (robot touching an obstacle)', str(summary.contacts))
+    fell = 'no' if summary.fell_at is None else f'yes, {summary.fell_at:.2f} s into the drive'
+    table.add_row('robot fell (down a drop)', fell)
     table.add_row('final odometry error', f'{summary.final_odometry_error:.3f} m')
     if snapshot is not None:
         table.add_row('snapshot', str(snapshot))

@@ -370,6 +370,7 @@ class RecordSummary:
     counts: dict[str, int]
     contacts: int
     final_odometry_error: float  # metres between odometry and true displacement at the end
+    fell_at: float | None = None  # seconds into the drive when the base fell (a drop), or None
 
     @property
     def real_time_factor(self) -> float:
@@ -400,6 +401,7 @@ def record(
     single_file = out.suffix == '.mcap'
     simulation = Simulation(config)
     start_pose = simulation.true_pose()
+    start_ns = simulation.stamp_ns
     started = time.perf_counter()
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -438,6 +440,13 @@ def record(
         c, s = math.cos(start_pose.yaw), math.sin(start_pose.yaw)
         true_x, true_y = c * dx + s * dy, -s * dx + c * dy
         error = math.hypot(last.odometry.x - true_x, last.odometry.y - true_y)
+    fell_ns = simulation.fell_ns
     return RecordSummary(
-        out, simulation.time, wall_time, dict(sink.counts), len(sink.contacts), error
+        out,
+        simulation.time,
+        wall_time,
+        dict(sink.counts),
+        len(sink.contacts),
+        error,
+        fell_at=None if fell_ns is None else (fell_ns - start_ns) / 1e9,
     )

@@ -170,6 +170,11 @@ class RobotSpec:
     lidar_model: str = 'rplidar-a2'  # the LiDAR profile it carries unless told otherwise
     cloud: CloudMount | None = None  # a 3D LiDAR (PointCloud2), the `cloud` profile of SimConfig
     suspension: Suspension | None = None  # a sprung body and wheels (None: one rigid body)
+    # A one-LiDAR, one-camera robot's topics: the node's defaults, or a parameter file's
+    # (`scanfuse simulate --params`), so the file means the same to the recording.
+    scan_topic: str = '/scan'
+    depth_topic: str = '/camera/depth/image_raw'
+    camera_info_topic: str = '/camera/depth/camera_info'
 
     def __post_init__(self) -> None:
         if not 0.0 < self.lidar_height < 3.0:
@@ -199,7 +204,9 @@ class RobotSpec:
         z = self.lidar_height
         if not self.several:
             return (
-                LidarMount('', 'laser', '/scan', self.lidar_x, self.lidar_y, z, self.lidar_yaw),
+                LidarMount(
+                    '', 'laser', self.scan_topic, self.lidar_x, self.lidar_y, z, self.lidar_yaw
+                ),
             )
         mounts = [_named_lidar('front', self.lidar_x, self.lidar_y, self.lidar_yaw, z)]
         if self.rear_lidar is not None:
@@ -216,8 +223,8 @@ class RobotSpec:
                     '',
                     'camera_depth_optical_frame',
                     'camera_link',
-                    '/camera/depth/image_raw',
-                    '/camera/depth/camera_info',
+                    self.depth_topic,
+                    self.camera_info_topic,
                     self.camera_x,
                     0.0,
                     z,
