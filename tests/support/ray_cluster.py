@@ -82,7 +82,7 @@ def _stop(head: subprocess.Popen[bytes]) -> None:
     group = head.pid  # start_new_session: the group's id is the head's pid
     try:
         os.killpg(group, signal.SIGTERM)
-        head.wait(timeout=20)
+        head.wait(timeout=5)
     except subprocess.TimeoutExpired:
         pass
     except ProcessLookupError:
