@@ -30,9 +30,10 @@ $(KILTED_BIN)/python:
 	$(PYTHON) -m venv $(KILTED)
 	$(KILTED_PIP) install --upgrade pip
 
-# sim and test as for .venv: pytest imports every test module before it selects `-m ros`.
+# sim, test and cluster as for .venv: pytest imports every test module (tests/test_cluster.py
+# imports Ray) before it selects `-m ros`.
 $(KILTED)/.installed-test: pyproject.toml tools/build_tf2_msgs.py | $(KILTED_BIN)/python
-	$(KILTED_PIP) install -e '.[sim,test,ros-kilted,rosbuild-kilted]'
+	$(KILTED_PIP) install -e '.[sim,test,ros-kilted,rosbuild-kilted,cluster]'
 	$(KILTED_BIN)/python tools/build_tf2_msgs.py
 	touch $@
 
