@@ -75,13 +75,17 @@ INPUT_TOPICS = ('scan_topic', 'depth_topic', 'camera_info_topic')
 
 def topics_named_in(params: Path | None) -> dict[str, str]:
     """The input topics a parameter file names: binding for a bag as for the node (one file,
-    one meaning), unlike the defaults, which only break ties among a bag's topics."""
+    one meaning), unlike the defaults, which only break ties among a bag's topics. An empty
+    topic names none: no such sensor (a LiDARs-only or camera-only robot), as the
+    configuration the file gives already says."""
     if params is None:
         return {}
     from scanfuse.config import read_ros_params  # noqa: PLC0415
 
     values = read_ros_params(params)
-    return {name: values[name] for name in INPUT_TOPICS if isinstance(values.get(name), str)}
+    return {
+        name: topic for name in INPUT_TOPICS if isinstance(topic := values.get(name), str) and topic
+    }
 
 
 @contextmanager

@@ -41,6 +41,8 @@ if TYPE_CHECKING:
 # The node's inputs: with `listen`, play waits until something subscribes to these.
 SENSOR_TYPES = frozenset({LASER_SCAN, IMAGE, CAMERA_INFO, POINT_CLOUD})
 PROGRESS_PERIOD_S = 0.5
+# Seconds without a new subscriber on the recording's sensor topics before play starts.
+SUBSCRIPTIONS_SETTLE = 1.0
 
 
 class PlayError(ScanfuseError):
@@ -173,10 +175,16 @@ class Player:
         sensors = [
             name for name in self.publishers if self.recording.topics[name].msgtype in SENSOR_TYPES
         ]
-        unheard = sensors
-        while unheard and time.monotonic() < deadline:
+        # A recording holds sensor topics the node does not fuse (a simulator's ground truth,
+        # a second camera): once some are heard, the rest get SUBSCRIPTIONS_SETTLE seconds.
+        heard: set[str] = set()
+        settled = deadline
+        while time.monotonic() < min(deadline, settled) and len(heard) < len(sensors):
             self.spin_for(0.05)
-            unheard = [n for n in sensors if self.publishers[n].get_subscription_count() == 0]
+            now = {n for n in sensors if self.publishers[n].get_subscription_count() > 0}
+            if now != heard:
+                heard, settled = now, time.monotonic() + SUBSCRIPTIONS_SETTLE
+        unheard = [name for name in sensors if name not in heard]
         if unheard:
             self.say(
                 f'nothing subscribes to {", ".join(unheard)}: the node listens to other topics '
