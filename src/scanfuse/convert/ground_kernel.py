@@ -345,7 +345,8 @@ def _profile(
     any floor's rise: an obstacle's face, a drop's edge. A bin without ground keeps the last
     ground; if it holds an obstacle's or a drop's points, the last ground's place moves on
     to it (the ground is held level under an obstacle and across a drop: neither a box's
-    top nor a drop's far floor becomes ground by distance alone).
+    top nor a drop's far floor becomes ground by distance alone). At the end, a bin without
+    ground takes the ground of the nearest column within FILL_COLUMNS that saw it there.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
     than `deadband` off the plane.
