@@ -21,25 +21,13 @@ from scanfuse.ros.batch import BagOptions, fuse_bags, input_digest
 from tests.support import ray_cluster
 from tests.support.bag_batch import bag_folder, messages
 from tests.support.ray_cluster import dying_job, ray_head
+from tests.support.tiny_evaluation import tiny_evaluation
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
 # The test's own function goes to the workers by value: they cannot import `tests`.
 ray.cloudpickle.register_pickle_by_value(ray_cluster)
-
-
-def tiny() -> EvaluationSettings:
-    """Two jobs: 4 s drives of the barricade world by `lidar` and by `obstacle`."""
-    return EvaluationSettings.quick(
-        worlds=('barricade',),
-        trials=0,
-        methods=('lidar', 'obstacle'),
-        closed_loop_methods=('lidar', 'obstacle'),
-        turning=(),
-        time_limit=4.0,
-        amr=(),
-    )
 
 
 @pytest.fixture(scope='module')
@@ -50,13 +38,13 @@ def head() -> Iterator[str]:
 
 @pytest.fixture(scope='module')
 def serial() -> str:
-    evaluation = Evaluation(tiny())
+    evaluation = Evaluation(tiny_evaluation())
     evaluation.run(1)
     return evaluation.result([]).to_json()
 
 
 def test_the_cluster_gives_the_in_process_result(head, serial):
-    evaluation = Evaluation(tiny())
+    evaluation = Evaluation(tiny_evaluation())
     evaluation.run(backend=RayCluster(head))
     assert len(evaluation.jobs()) == 2
     assert evaluation.retried == 0
@@ -64,7 +52,7 @@ def test_the_cluster_gives_the_in_process_result(head, serial):
 
 
 def test_a_killed_worker_is_retried_and_every_trial_counted(head, serial, tmp_path):
-    evaluation = Evaluation(tiny())
+    evaluation = Evaluation(tiny_evaluation())
     runner = functools.partial(dying_job, str(tmp_path))
     evaluation.run(backend=RayCluster(head, max_retries=1), job_runner=runner)
     # Every job's first attempt killed its worker: two markers, two runs again.
@@ -79,13 +67,17 @@ def test_a_killed_worker_is_retried_and_every_trial_counted(head, serial, tmp_pa
 def test_workers_lost_too_often_stop_the_run(head, tmp_path):
     runner = functools.partial(dying_job, str(tmp_path))
     with pytest.raises(ClusterError, match='lost its worker 1 times'):
-        Evaluation(tiny()).run(backend=RayCluster(head, max_retries=0), job_runner=runner)
+        Evaluation(tiny_evaluation()).run(
+            backend=RayCluster(head, max_retries=0), job_runner=runner
+        )
 
 
 def test_a_task_error_is_raised_as_itself(head):
     with pytest.raises(ConfigError, match='unknown method'):
         run_tasks(
-            Evaluation, [(tiny(),), (EvaluationSettings(methods=('sonar',)),)], RayCluster(head)
+            Evaluation,
+            [(tiny_evaluation(),), (EvaluationSettings(methods=('sonar',)),)],
+            RayCluster(head),
         )
 
 
@@ -120,7 +112,7 @@ def test_a_batch_of_bags_on_the_cluster(head, tmp_path):
 
 def test_a_sweep_on_the_cluster_gives_the_local_sweep(head):
     axes = parse_sweeps(['min_obstacle_height=0.03,0.06'])
-    local = run_sweep(tiny(), axes, LocalPool(1))
-    remote = run_sweep(tiny(), axes, RayCluster(head))
+    local = run_sweep(tiny_evaluation(), axes, LocalPool(1))
+    remote = run_sweep(tiny_evaluation(), axes, RayCluster(head))
     assert remote.settings == local.settings
     assert [r.to_json() for r in remote.results] == [r.to_json() for r in local.results]

@@ -24,9 +24,12 @@ from tests.support.modes import (
     D2L_FX,
     LIDAR_AT,
     OMEGA,
+    box_cloud,
     camera_only_params,
+    clouds_only_params,
     d2l_images,
     lidar_in_world,
+    lidars_only_params,
     turning_scan,
 )
 from tests.support.reference import d2l_scan_loop
@@ -40,20 +43,9 @@ REAR = (-0.3, -0.2), -3 * math.pi / 4  # rear-right corner, facing rear-right
 
 def lidars_only(**changes) -> FusionConfig:
     """Two 270-degree LiDARs at opposite corners of the base, no camera, output in base_link
-    over 360 degrees at half a degree."""
-    values = {
-        'use_tf': False,
-        'memory': False,
-        'depth_topic': '',
-        'output_frame': 'base_link',
-        'angle_min': -math.pi,
-        'angle_max': math.pi,
-        'angle_increment': math.pi / 360,
-        'lidars': ['front', 'rear'],
-        'front': {'topic': '/front/scan', 'x': 0.3, 'y': 0.2, 'z': 0.2, 'yaw': math.pi / 4},
-        'rear': {'topic': '/rear/scan', 'x': -0.3, 'y': -0.2, 'z': 0.2, 'yaw': -3 * math.pi / 4},
-        **changes,
-    }
+    over 360 degrees at half a degree (`modes.lidars_only_params`); a change to None drops
+    the parameter."""
+    values = {**lidars_only_params(), **changes}
     return FusionConfig.from_dict({k: v for k, v in values.items() if v is not None})
 
 
@@ -255,25 +247,8 @@ def test_a_camera_tf_cannot_place_makes_no_output_and_says_why(caplog):
 
 
 def test_clouds_only_report_the_slab_box_and_not_the_floor():
-    # A 3D sensor 1 m up at the base origin: the floor around it (z = 0) and a box 0.3 m
-    # high whose near face is at x = 1.5 m. Points in sensor frame = base frame - (0, 0, 1).
-    xs, ys = np.meshgrid(np.linspace(-3, 3, 121), np.linspace(-3, 3, 121))
-    floor = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    face_y, face_z = np.meshgrid(np.linspace(-0.2, 0.2, 41), np.linspace(0.0, 0.3, 16))
-    face = np.stack([np.full(face_y.size, 1.5), face_y.ravel(), face_z.ravel()], axis=1)
-    points = np.concatenate([floor, face]) - np.array([0.0, 0.0, 1.0])
-    config = FusionConfig.from_dict(
-        {
-            'scan_topic': '',
-            'depth_topic': '',
-            'use_tf': False,
-            'memory': False,
-            'obstacle_min_points': 1,
-            'clouds': ['points'],
-            'points': {'topic': '/points', 'z': 1.0},
-        }
-    )
-    stream: FusionStream[int] = FusionStream(config)
+    points = box_cloud()
+    stream: FusionStream[int] = FusionStream(FusionConfig.from_dict(clouds_only_params()))
     (out,) = stream.add_cloud(NS, points, NS, 'points', 'points', token=3)
     assert out.token == 3
     assert out.fused is not None

@@ -265,14 +265,8 @@ def play(
     wait: Annotated[float, typer.Option(help='seconds to wait for the node with --listen')] = 30.0,
 ) -> None:
     """Publish a recording on ROS 2 topics at its recorded pace, each with its recorded QoS."""
-    try:
+    with ros_needed('play'):
         from scanfuse.ros.play import PlayOptions, play_bag  # noqa: PLC0415
-    except ModuleNotFoundError as err:
-        missing = (err.name or '').partition('.')[0]
-        if not ROS_MODULE.fullmatch(missing):
-            raise
-        report_error(f'{missing} is not installed; play needs ROS 2 for Python: {ROS_WAYS}')
-        raise typer.Exit(1) from None
     listened = list(listen_to or ([LISTEN_DEFAULT] if listen else []))
     options = PlayOptions(
         rate=rate, loop=loop, topics=tuple(topic or ()), start=start, listen=listened, wait=wait
@@ -534,16 +528,8 @@ def node(
     ] = None,
 ) -> None:
     """Run the live ROS 2 node; ROS arguments follow --ros-args (-r remaps, -p name:=value)."""
-    try:
+    with ros_needed('the live node'):
         from scanfuse.ros.node import main as node_main  # noqa: PLC0415
-    except ModuleNotFoundError as err:
-        missing = (err.name or '').partition('.')[0]
-        if not ROS_MODULE.fullmatch(missing):
-            raise
-        report_error(
-            f'{missing} is not installed; the live node needs ROS 2 for Python: {ROS_WAYS}'
-        )
-        raise typer.Exit(1) from None
     if importlib.util.find_spec('tf2_msgs') is None:
         # The node still runs: the mounting then comes from the parameters, not from TF.
         warning = (
@@ -563,6 +549,20 @@ def node_entry() -> int:
     """`ros2 run scanfuse scanfuse_node ARGS`, the colcon package's executable: `scanfuse node`."""
     sys.argv[0] = 'scanfuse'  # the usage line names the command it runs: `scanfuse node`
     return main(['node', *sys.argv[1:]])
+
+
+@contextmanager
+def ros_needed(what: str) -> Iterator[None]:
+    """Imports inside need ROS 2 for Python: a missing ROS module is one clean line and exit
+    1 saying how to get it; any other missing module is the bug it is."""
+    try:
+        yield
+    except ModuleNotFoundError as err:
+        missing = (err.name or '').partition('.')[0]
+        if not ROS_MODULE.fullmatch(missing):
+            raise
+        report_error(f'{missing} is not installed; {what} needs ROS 2 for Python: {ROS_WAYS}')
+        raise typer.Exit(1) from None
 
 
 def report_error(message: str) -> None:

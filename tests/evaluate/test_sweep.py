@@ -12,26 +12,14 @@ import pytest
 from scanfuse.cli import main
 from scanfuse.cluster import LocalPool
 from scanfuse.errors import ConfigError
-from scanfuse.evaluate.runner import Evaluation, EvaluationSettings
+from scanfuse.evaluate.runner import Evaluation
 from scanfuse.evaluate.sweep import combinations, parse_sweeps, run_sweep, write_sweep
-
-
-def tiny() -> EvaluationSettings:
-    """Two jobs: 4 s drives of the barricade world by `lidar` and by `obstacle`."""
-    return EvaluationSettings.quick(
-        worlds=('barricade',),
-        trials=0,
-        methods=('lidar', 'obstacle'),
-        closed_loop_methods=('lidar', 'obstacle'),
-        turning=(),
-        time_limit=4.0,
-        amr=(),
-    )
+from tests.support.tiny_evaluation import tiny_evaluation
 
 
 def test_a_two_by_two_sweep_equals_separate_runs(tmp_path):
     axes = parse_sweeps(['min_obstacle_height=0.03,0.06', 'max_obstacle_height=0.4,1.5'])
-    sweep = run_sweep(tiny(), axes, LocalPool(2))
+    sweep = run_sweep(tiny_evaluation(), axes, LocalPool(2))
     assert sweep.settings == [
         {'min_obstacle_height': 0.03, 'max_obstacle_height': 0.4},
         {'min_obstacle_height': 0.03, 'max_obstacle_height': 1.5},
@@ -41,7 +29,7 @@ def test_a_two_by_two_sweep_equals_separate_runs(tmp_path):
     rows = sweep.rows()
     assert len(rows) == 4 * 2
     for setting, result in zip(sweep.settings, sweep.results, strict=True):
-        alone = Evaluation(replace(tiny(), params=setting))
+        alone = Evaluation(replace(tiny_evaluation(), params=setting))
         alone.run(1)
         expected = alone.result([])
         assert result.to_json() == expected.to_json()
@@ -74,6 +62,6 @@ def test_sweep_options_are_checked(tmp_path):
     with pytest.raises(ConfigError, match='given twice'):
         parse_sweeps(['memory_time=1', 'memory_time=2'])
     with pytest.raises(ConfigError, match='--sweep min_obstacle_height=abc'):
-        run_sweep(tiny(), parse_sweeps(['min_obstacle_height=abc']))
+        run_sweep(tiny_evaluation(), parse_sweeps(['min_obstacle_height=abc']))
     argv = ['evaluate', '--out', str(tmp_path), '--quick', '--sweep', 'no_such_parameter=1']
     assert main(argv) == 1

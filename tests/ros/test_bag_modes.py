@@ -30,8 +30,10 @@ from tests.support.modes import (
     D2L_FX,
     D2L_RANGE,
     OMEGA,
+    box_cloud,
     camera_messages,
     camera_only_params,
+    clouds_only_params,
     d2l_images,
     lidar_in_world,
     lidar_messages,
@@ -106,29 +108,14 @@ def test_camera_only_row_d2l_through_scanfuse_bag_is_depthimage_to_laserscan(tmp
 
 
 def test_clouds_only_through_scanfuse_bag_find_the_slab_box_not_the_floor(tmp_path):
-    # A 3D sensor 1 m up at the base origin sees the floor (z = 0) and a box 0.3 m high whose
-    # near face is at x = 1.5 m; points in its frame are the base frame's less (0, 0, 1).
-    xs, ys = np.meshgrid(np.linspace(-3, 3, 121), np.linspace(-3, 3, 121))
-    floor = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
-    face_y, face_z = np.meshgrid(np.linspace(-0.2, 0.2, 41), np.linspace(0.0, 0.3, 16))
-    face = np.stack([np.full(face_y.size, 1.5), face_y.ravel(), face_z.ravel()], axis=1)
-    points = np.concatenate([floor, face]) - np.array([0.0, 0.0, 1.0])
+    points = box_cloud()
     stamps = [1_000_000_000 + k * 100_000_000 for k in range(3)]
     messages = [
         ('/points', POINT_CLOUD, t, cloud_to_cdr(points, frame_id='points', stamp_ns=t))
         for t in stamps
     ]
-    values = {
-        'scan_topic': '',
-        'depth_topic': '',
-        'use_tf': False,
-        'memory': False,
-        'obstacle_min_points': 1,
-        'clouds': ['points'],
-        'points': {'topic': '/points', 'z': 1.0},
-    }
     source = write_bag(tmp_path / 'in', messages)
-    fuse_bag(source, tmp_path / 'out', config=FusionConfig.from_dict(values))
+    fuse_bag(source, tmp_path / 'out', config=FusionConfig.from_dict(clouds_only_params()))
     fused = _fused(tmp_path / 'out')
     assert [t for t, _ in fused] == stamps
     for _, scan in fused:

@@ -181,3 +181,27 @@ def camera_messages(
             raw = depth_to_cdr(images[k], frame_id='camera_depth_frame', stamp_ns=stamp)
             messages.append((depth_topic, IMAGE, stamp, raw))
     return messages
+
+
+def box_cloud() -> np.ndarray:
+    """What a 3D sensor 1 m up at the base origin sees (N x 3, its frame = the base frame
+    less (0, 0, 1)): the floor around it (z = 0) and a box 0.3 m high whose near face is at
+    x = 1.5 m, 0.4 m wide."""
+    xs, ys = np.meshgrid(np.linspace(-3, 3, 121), np.linspace(-3, 3, 121))
+    floor = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1)
+    face_y, face_z = np.meshgrid(np.linspace(-0.2, 0.2, 41), np.linspace(0.0, 0.3, 16))
+    face = np.stack([np.full(face_y.size, 1.5), face_y.ravel(), face_z.ravel()], axis=1)
+    return np.concatenate([floor, face]) - np.array([0.0, 0.0, 1.0])
+
+
+def clouds_only_params() -> dict[str, Any]:
+    """Parameters of a robot with only that 3D sensor (`box_cloud`), named `points` on /points."""
+    return {
+        'scan_topic': '',
+        'depth_topic': '',
+        'use_tf': False,
+        'memory': False,
+        'obstacle_min_points': 1,
+        'clouds': ['points'],
+        'points': {'topic': '/points', 'z': 1.0},
+    }
