@@ -100,7 +100,7 @@ def run() -> list[Row]:
         assert out.passed is None  # fused with the camera
 
     one_scan()
-    assert stream.extras.counts.used == {'rear': 1, 'points': 1}, stream.extras.counts
+    assert stream.sources.counts.used == {'rear': 1, 'points': 1}, stream.sources.counts
 
     pipeline = FusionPipeline(config)
 

@@ -75,7 +75,7 @@ def test_a_clouds_zero_points_are_no_returns_dropped_and_counted():
     assert reading(out.fused, 0.0) == pytest.approx(1.5, abs=0.01)
     assert reading(out.fused, math.pi) == math.inf  # nothing behind: no obstacle at 0.5 m
     assert np.nanmin(out.fused.ranges) == pytest.approx(1.5, abs=0.01)
-    assert stream.extras.counts.no_return == {'points': 1000}
+    assert stream.sources.counts.no_return == {'points': 1000}
 
 
 def hokuyo_scan(stamp=NS, *, angle_min=-0.75 * math.pi, count=540, increment=None):

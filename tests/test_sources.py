@@ -70,7 +70,7 @@ def test_two_lidars_at_opposite_corners_give_one_scan_true_from_the_output_origi
     assert out.fused is not None
     assert np.isfinite(out.fused.ranges).all()  # the rear LiDAR fills the front one's gap
     np.testing.assert_allclose(out.fused.ranges, truth, atol=0.01)
-    assert stream.extras.counts.used == {'rear': 1}
+    assert stream.sources.counts.used == {'rear': 1}
 
 
 def test_full_circle_puts_a_270_degree_front_lidar_on_360_degrees_the_rear_one_fills():
@@ -97,7 +97,7 @@ def test_a_source_that_never_arrives_is_passed_over_and_counted():
     front = lidar_scan((0.3, 0.2), math.pi / 4, 360, math.radians(270), 'front')
     (out,) = stream.add_scan(front, 1, NS)
     assert out.fused is None  # the front LiDAR alone, unchanged
-    assert stream.extras.counts.missing == {'rear': 1}
+    assert stream.sources.counts.missing == {'rear': 1}
 
 
 def test_a_stale_source_beyond_its_max_time_offset_is_not_used():
@@ -110,7 +110,7 @@ def test_a_stale_source_beyond_its_max_time_offset_is_not_used():
     )
     (out,) = stream.add_scan(front, 1, NS + NS // 10)
     assert out.fused is None
-    assert stream.extras.counts.missing == {'rear': 1}
+    assert stream.sources.counts.missing == {'rear': 1}
 
 
 # ------------------------------------------------------------------ cameras and clouds
@@ -502,7 +502,7 @@ def test_a_source_frame_tf_cannot_relate_to_the_base_is_passed_over_and_counted(
     stream.add_cloud(NS, np.array([(1.5, 0.0, 0.1)] * 20), NS, 'livox', 'points')
     (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
     assert out.fused is None  # the LiDAR goes on alone
-    assert stream.extras.counts.no_mounting == {'points': 1}
+    assert stream.sources.counts.no_mounting == {'points': 1}
 
 
 def test_clock_skew_between_sources_leaves_the_skewed_one_out_and_the_scan_coming():
@@ -515,8 +515,8 @@ def test_clock_skew_between_sources_leaves_the_skewed_one_out_and_the_scan_comin
         front = lidar_scan((0.3, 0.2), math.pi / 4, 360, fov, 'front', stamp=stamp)
         (out,) = stream.add_scan(front, k, stamp + 1)
         assert out.token == k
-    assert stream.extras.counts.missing == {'rear': 5}
-    assert stream.extras.counts.used == {}
+    assert stream.sources.counts.missing == {'rear': 5}
+    assert stream.sources.counts.used == {}
 
 
 def test_a_cloud_without_xyz_or_with_a_short_point_step_is_a_message_error():
@@ -572,7 +572,8 @@ def test_the_shipped_several_sensors_example_loads_with_every_source():
     assert (config.camera_x, config.camera_height) == (0.4, 0.45)
     assert sources.cameras[1].min_obstacle_height == 0.05
     stream: FusionStream[int] = FusionStream(config)
-    assert set(stream.extras.names) == {'rear', 'rear_depth', 'livox'}
+    # Every camera adds to an output by one rule; only the triggering LiDAR is no contributor.
+    assert set(stream.sources.names) == {'rear', 'front_depth', 'rear_depth', 'livox'}
 
 
 def test_what_a_second_lidar_sees_is_not_remembered_from_the_rear_camera():

@@ -49,9 +49,9 @@ from typing import TYPE_CHECKING, Generic, TypeVar, cast
 import numpy as np
 
 from scanfuse.config import Method
-from scanfuse.convert.ground import GroundPlane, GroundProfile, GroundSettings, GroundTracker
+from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError, ScanfuseError, TransformError
-from scanfuse.extras import ExtraSources, primary_camera_config
+from scanfuse.feeds import CameraFeed, DepthFrame, Sources
 from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
@@ -67,7 +67,7 @@ from scanfuse.memory import (
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
 from scanfuse.output import configured_grid, default_grid, empty_scan, rebinned_lidar
-from scanfuse.pipeline import FusionPipeline
+from scanfuse.pipeline import StageTimings
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
@@ -79,7 +79,8 @@ if TYPE_CHECKING:
 
     from scanfuse.camera import CameraModel
     from scanfuse.config import FusionConfig
-    from scanfuse.pipeline import StageTimings
+    from scanfuse.convert.ground import GroundTracker
+    from scanfuse.pipeline import FusionPipeline
     from scanfuse.scan import AngleGrid, Scan
 
 logger = logging.getLogger(__name__)
@@ -87,8 +88,6 @@ logger = logging.getLogger(__name__)
 T = TypeVar('T')
 
 NANOSECONDS = 1_000_000_000
-# Frames kept for pairing: at 30 Hz and max_time_offset 0.1 s about 7 are ever useful.
-MAX_FRAMES = 16
 # Pixels of one depth frame a memory cell must hold to be remembered (`_add_slab`).
 MEMORY_CELL_PIXELS = 3
 # A slab pixel is remembered only when both its horizontal neighbours' depths lie within
@@ -132,20 +131,6 @@ class Compensation(str, Enum):
     OFF = 'off (motion_compensation is false)'
     NO_ODOMETRY = 'none (no odometry)'
     COMPENSATED = 'compensated through odometry'
-
-
-@dataclass(frozen=True)
-class DepthFrame:
-    """A depth image (uint16 mm or float32 m) with its stamp, frame and camera."""
-
-    stamp_ns: int
-    depth: npt.NDArray[np.generic]
-    camera: CameraModel
-    frame_id: str = ''
-
-    @property
-    def optical_frame(self) -> str:
-        return frame_name(self.frame_id or self.camera.frame_id)
 
 
 @dataclass(frozen=True)
@@ -219,6 +204,20 @@ class _Pending(Generic[T]):
 
 
 @dataclass(frozen=True)
+class _Seen:
+    """What one camera gave an output: its scan on the output grid and the frame it came
+    from, or why it gave none (`reason`)."""
+
+    feed: CameraFeed
+    reason: Passed | None = None
+    frame: DepthFrame | None = None
+    depth_scan: Scan | None = None
+    extrinsics: Extrinsics | None = None  # the mounting on the floor found (memory's slab)
+    compensation: Compensation = Compensation.OFF
+    timings: StageTimings | None = None
+
+
+@dataclass(frozen=True)
 class OutputLayout:
     """The frame and grid of an output scan, where the frame lies on the base, and the
     first LiDAR's own scan when it is already that output (None: it is re-binned)."""
@@ -262,15 +261,12 @@ class FusionStream(Generic[T]):
         self.release_when_silent = release_when_silent
         self.tf = TransformStore()
         self.counts = StreamCounts()
-        self.camera: CameraModel | None = None
-        self._frames: deque[DepthFrame] = deque(maxlen=MAX_FRAMES)
         self._pending: deque[_Pending[T]] = deque()
-        self._last_depth_ns: int | None = None
-        self._started_ns: int | None = None  # first scan or frame: the camera's grace starts
+        self._started_ns: int | None = None  # first scan or frame: the cameras' grace starts
         self._newest_scan_ns: int | None = None
         self._warned: set[str] = set()
-        self._extrinsics: dict[tuple[str, str], ExtrinsicsChoice] = {}
-        self._extrinsics_key: tuple[str, str] | None = None  # the pair chosen last
+        self._extrinsics: dict[tuple[str, str, str], ExtrinsicsChoice] = {}
+        self._extrinsics_key: tuple[str, str, str] | None = None  # the choice made last
         self.extrinsics_source = 'parameters (no scan fused yet)'
         self.odometry = OdometryHistory()
         self.imu = ImuHistory()
@@ -282,8 +278,6 @@ class FusionStream(Generic[T]):
         self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
-        self._cleared_with: int | None = None  # stamp of the last depth frame that cleared
-        self._extra_cleared_with: dict[str, int] = {}  # the same, per other camera
         self.assembler: FragmentAssembler[T] | None = None
         # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
         self._rate_scans: deque[tuple[Scan, T]] = deque(maxlen=RATE_SCANS)
@@ -298,26 +292,17 @@ class FusionStream(Generic[T]):
         Everything new is built before anything is changed: a configuration refused here
         (ScanfuseError) leaves the stream as it was.
         """
-        # The first camera's own section (its slab and pairing window) holds for it, as
-        # another camera's does.
-        pipeline = FusionPipeline(primary_camera_config(config))
+        # Every camera gets its own section's settings, pipeline and floor; what a camera
+        # has received (and learnt of the floor while its settings hold) stays.
+        sources = Sources(config, getattr(self, 'sources', None))
         parameters = Extrinsics.from_config(config)
-        extras = ExtraSources(config)
-        ground_settings = GroundSettings.from_config(pipeline.config)
-        ground = getattr(self, 'ground', None)  # what it learnt stays while its settings hold
-        if not config.ground_estimate:
-            ground = None
-        elif ground is None or ground.settings != ground_settings:
-            ground = GroundTracker(ground_settings)
         settings = MemorySettings(config.memory_radius, config.memory_time, config.memory_cell)
         previous = getattr(self, 'config', None)
         if previous is not None and previous.memory_scan_matching != config.memory_scan_matching:
             # The remembered points lie in the corrected frame or odometry's: not in the other.
             self._drop_memory('memory_scan_matching changed')
         self.config = config
-        self.pipeline = pipeline
         self._parameters = parameters
-        self._max_offset_ns = seconds_to_ns(pipeline.config.max_time_offset)
         self._camera_timeout_ns = seconds_to_ns(config.camera_timeout)
         self._period_ns = round(1e9 / config.publish_rate) if config.publish_rate > 0 else 0
         lidars = config.sources.lidars
@@ -327,9 +312,9 @@ class FusionStream(Generic[T]):
         # Odometry that has arrived stays; only its extrapolation limit follows the config.
         self.odometry.max_extrapolation_ns = seconds_to_ns(config.max_odometry_extrapolation)
         self._extrinsics.clear()
-        self.extras = extras
-        self.ground = ground
-        self._ground_frame_ns: int | None = None
+        for feed in sources.cameras.values():
+            feed.ground_frame_ns = None
+        self.sources: Sources = sources  # every camera, other LiDAR and cloud
         self._reassemble(config)
         if not config.memory:
             self.memory = None
@@ -367,13 +352,11 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ inputs
 
     def add_camera_info(self, camera: CameraModel, source: str | None = None) -> None:
-        """A (new) calibration: frames of the old one are dropped."""
-        if self._is_extra(source):
-            self.extras.add_camera_info(str(source), camera)
-            return
-        if camera != self.camera:
-            self.camera = camera
-            self._frames.clear()
+        """A (new) calibration of the camera `source` names (None: the one on
+        `depth_topic`): its frames of the old one are dropped."""
+        feed = self.sources.camera(source)
+        if feed is not None:
+            feed.add_camera_info(camera)
 
     def add_depth(
         self,
@@ -384,37 +367,32 @@ class FusionStream(Generic[T]):
         source: str | None = None,
         token: T | None = None,
     ) -> list[StreamOutput[T]]:
-        """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`.
+        """A depth image stamped `stamp_ns` (exposure time), arrived at `now_ns`, of the
+        camera `source` names (None: the one on `depth_topic`).
 
-        Without a LiDAR (`scan_topic` empty) each frame of the first camera makes an output
-        scan at its own stamp (`_camera_triggered`); `token` comes back with it."""
-        if self._is_extra(source):
-            try:
-                self.extras.add_depth(str(source), stamp_ns, depth, frame_id)
-            except ScanfuseError as err:
-                self.note_malformed(f'depth image ({source})', err)
+        Without a LiDAR (`scan_topic` empty) each frame of the camera on `depth_topic` (the
+        trigger) makes an output scan at its own stamp (`_camera_triggered`); `token` comes
+        back with it."""
+        feed = self.sources.camera(source)
+        if feed is None:
             return self._release(now_ns)
-        if self.camera is None:
+        if feed.model is None:
             self._warn_once(
-                'depth before camera info',
-                f'depth images before any CameraInfo on {self.config.camera_info_topic} '
-                'are dropped',
+                f'depth before camera info {feed.name}',
+                f'depth images before any CameraInfo on {feed.camera_info_topic} are dropped',
             )
             return self._release(now_ns)
         try:
-            self.camera.check_depth(depth)
+            frame = feed.add_depth(stamp_ns, depth, frame_id, now_ns)
         except ScanfuseError as err:
-            self.note_malformed('depth image', err)
+            self.note_malformed('depth image' if source is None else f'depth image ({source})', err)
             return self._release(now_ns)
-        self._last_depth_ns = now_ns
         if self._started_ns is None:
             self._started_ns = now_ns
         self.counts.depth_frames += 1
-        frame = DepthFrame(stamp_ns, depth, self.camera, frame_id)
-        self._frames.append(frame)
-        self.counts.peak_frames = max(self.counts.peak_frames, len(self._frames))
-        if not self.config.has_lidar:
-            return self._camera_triggered(frame, now_ns, cast('T', token))
+        self.counts.peak_frames = max(self.counts.peak_frames, len(feed.frames))
+        if not self.config.has_lidar and feed is self.sources.camera(None):
+            return self._camera_triggered(feed, frame, now_ns, cast('T', token))
         return self._release(now_ns)
 
     def add_scan(
@@ -440,8 +418,8 @@ class FusionStream(Generic[T]):
         except InputError as err:
             msg = f'LiDAR scan on {topic} skipped: {err}'
             raise InputError(msg) from err
-        if self._is_extra(source):
-            self.extras.add_scan(str(source), scan)
+        if source is not None and source in self.sources.lidars:
+            self.sources.add_scan(source, scan)
             return self._release(now_ns)
         if self.assembler is None:
             return self._enqueue(scan, token, now_ns, assembled=False)
@@ -489,8 +467,8 @@ class FusionStream(Generic[T]):
 
         With neither LiDAR nor camera each cloud of the first named cloud makes an output
         scan at its stamp (`_cloud_triggered`); `token` comes back with it."""
-        if not self._is_extra(source):
-            msg = f'no cloud source named {source!r}; clouds: {", ".join(self.extras.clouds)}'
+        if source not in self.sources.clouds:
+            msg = f'no cloud source named {source!r}; clouds: {", ".join(self.sources.clouds)}'
             raise InputError(msg)
         points = np.asarray(points)
         if points.ndim != 2 or points.shape[1] != 3 or points.dtype.kind not in 'fiu':
@@ -499,14 +477,11 @@ class FusionStream(Generic[T]):
                 f'shape {points.shape} of {points.dtype}; pass only the x, y, z columns'
             )
             raise InputError(msg)
-        self.extras.add_cloud(source, stamp_ns, points, frame_id)
+        self.sources.add_cloud(source, stamp_ns, points, frame_id)
         config = self.config
         if not (config.has_lidar or config.has_camera) and source == config.sources.clouds[0].name:
             return self._cloud_triggered(stamp_ns, now_ns, cast('T', token))
         return self._release(now_ns)
-
-    def _is_extra(self, source: str | None) -> bool:
-        return source is not None and source in self.extras
 
     def add_imu(
         self, stamp_ns: int, orientation: tuple[float, float, float, float], frame_id: str = ''
@@ -629,13 +604,39 @@ class FusionStream(Generic[T]):
 
     # ------------------------------------------------------------ state
 
-    def camera_alive(self, now_ns: int) -> bool:
-        """A depth frame arrived within camera_timeout (at start-up: the stream began then)."""
-        last = self._last_depth_ns if self._last_depth_ns is not None else self._started_ns
+    def camera_alive(self, now_ns: int, source: str | None = None) -> bool:
+        """The camera `source` names (None: the one on `depth_topic`) sent a depth frame
+        within camera_timeout (at start-up: the stream began then)."""
+        feed = self.sources.camera(source)
+        return feed is not None and self._alive(feed, now_ns)
+
+    def _alive(self, feed: CameraFeed, now_ns: int) -> bool:
+        last = feed.last_arrival_ns if feed.last_arrival_ns is not None else self._started_ns
         return last is not None and now_ns - last <= self._camera_timeout_ns
 
-    def camera_age_s(self, now_ns: int) -> float:
-        return math.inf if self._last_depth_ns is None else (now_ns - self._last_depth_ns) / 1e9
+    def camera_age_s(self, now_ns: int, source: str | None = None) -> float:
+        feed = self.sources.camera(source)
+        if feed is None or feed.last_arrival_ns is None:
+            return math.inf
+        return (now_ns - feed.last_arrival_ns) / 1e9
+
+    @property
+    def camera(self) -> CameraModel | None:
+        """The calibration of the camera on `depth_topic` (the one-source shorthand)."""
+        feed = self.sources.camera(None)
+        return None if feed is None else feed.model
+
+    @property
+    def pipeline(self) -> FusionPipeline | None:
+        """The pipeline of the camera on `depth_topic` (the one-source shorthand)."""
+        feed = self.sources.camera(None)
+        return None if feed is None else feed.pipeline
+
+    @property
+    def ground(self) -> GroundTracker | None:
+        """The floor of the camera on `depth_topic` (the one-source shorthand)."""
+        feed = self.sources.camera(None)
+        return None if feed is None else feed.ground
 
     @property
     def waiting(self) -> int:
@@ -712,30 +713,24 @@ class FusionStream(Generic[T]):
         return moved, base_to_output
 
     def _ready(self, pending: _Pending[T], now_ns: int) -> bool:
-        if self.camera is None:
-            return True
-        if self.release_when_silent and not self.camera_alive(now_ns):
-            return True
-        if self._frames and self._frames[-1].stamp_ns >= pending.scan.stamp_ns:
-            return True
-        return now_ns >= pending.deadline_ns
+        """Every calibrated camera has a frame at or after the scan's stamp (no later one
+        can be nearer), is silent (`release_when_silent`), or the wait is over."""
+        for feed in self.sources.cameras.values():
+            if feed.model is None or feed.has_frame_from(pending.scan.stamp_ns):
+                continue
+            if self.release_when_silent and not self._alive(feed, now_ns):
+                continue
+            if now_ns < pending.deadline_ns:
+                return False
+        return True
 
     def _prune_frames(self) -> None:
         """Frames no waiting or future scan can pair with (scans come in stamp order)."""
         if self._newest_scan_ns is None:
             return
         oldest = self._pending[0].scan.stamp_ns if self._pending else self._newest_scan_ns
-        while len(self._frames) > 1 and self._frames[0].stamp_ns + self._max_offset_ns < oldest:
-            self._frames.popleft()
-
-    def _nearest_frame(self, stamp_ns: int) -> DepthFrame | None:
-        best: DepthFrame | None = None
-        best_offset = self._max_offset_ns + 1
-        for frame in self._frames:
-            offset = abs(frame.stamp_ns - stamp_ns)
-            if offset < best_offset:  # of two equally near, the earlier one (frames ascend)
-                best, best_offset = frame, offset
-        return best
+        for feed in self.sources.cameras.values():
+            feed.prune(oldest)
 
     # ------------------------------------------------------------ one scan
 
@@ -773,151 +768,239 @@ class FusionStream(Generic[T]):
         else:
             lidar, deskewed = self._deskew(scan)
             lidar, base_to_output = self._to_output(lidar)
-        if self.camera is None:
-            # No camera configured (LiDARs only): the LiDARs are the output, nothing passed.
-            reason = Passed.NO_CAMERA_INFO if self.config.has_camera else None
-            return self._pass(pending, lidar, deskewed, reason, base_to_output)
-        frame = self._nearest_frame(scan.stamp_ns)
+        arrived = pending.arrived_ns
+        seen = [
+            self._camera_contribution(feed, lidar, base_to_output, arrived, scan.frame_id)
+            for feed in self.sources.cameras.values()
+        ]
+        if not any(s.reason is None for s in seen):
+            # No camera adds to it: the LiDAR as it came, its own bytes when nothing else does.
+            # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's.
+            clean = _without_error_values(lidar)
+            fused = clean if clean is not pending.scan or pending.assembled else None
+            return self._assemble(
+                pending.token, pending.arrived_ns, seen, base_to_output,
+                lidar=clean, fused=fused, deskewed=deskewed,
+            )  # fmt: skip
+        return self._assemble(
+            pending.token, pending.arrived_ns, seen, base_to_output,
+            lidar=lidar, fused=lidar, deskewed=deskewed,
+        )  # fmt: skip
+
+    def _assemble(
+        self,
+        token: T,
+        arrived_ns: int,
+        seen: list[_Seen],
+        base_to_output: Transform,
+        *,
+        lidar: Scan,
+        fused: Scan | None,
+        depth_scan: Scan | None = None,
+        deskewed: bool = False,
+    ) -> StreamOutput[T]:
+        """The output: `fused` (None: `lidar`'s own bytes) with every camera that paired
+        merged into it, then the other LiDARs and the clouds (`_with_sources`), then the
+        memory (`_remember`). `passed`: why the first camera that did not pair did not."""
+        paired = [s for s in seen if s.reason is None]
+        reason = next((s.reason for s in seen if s.reason is not None), None)
+        if reason is not None:
+            self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
+        elif paired:
+            self.counts.fused += 1
+        first = paired[0] if paired else None
+        if first is not None and first.compensation is Compensation.COMPENSATED:
+            self.counts.compensated += 1
+        for camera in paired:
+            if camera.depth_scan is None:
+                continue  # the trigger camera's own row scan: the output already
+            scan = camera.depth_scan
+            fused = merge_scans(lidar if fused is None else fused, scan)
+            depth_scan = scan if depth_scan is None else merge_scans(depth_scan, scan)
+        output = StreamOutput(
+            token=token,
+            lidar=lidar,
+            fused=fused,
+            depth_scan=depth_scan,
+            arrived_ns=arrived_ns,
+            passed=reason,
+            depth_stamp_ns=None if first is None or first.frame is None else first.frame.stamp_ns,
+            compensation=Compensation.NO_ODOMETRY if first is None else first.compensation,
+            deskewed=deskewed,
+            timings=_total_timings([s.timings for s in paired if s.timings is not None]),
+        )
+        return self._remember(self._with_sources(output, base_to_output), paired, base_to_output)
+
+    # ------------------------------------------------------------ cameras
+
+    def _camera_contribution(
+        self,
+        feed: CameraFeed,
+        output: Scan,
+        base_to_output: Transform,
+        arrived_ns: int,
+        lidar_frame: str | None,
+        frame: DepthFrame | None = None,
+    ) -> _Seen:
+        """One camera's scan on `output`'s grid at its stamp: its frame nearest the stamp
+        within its own max_time_offset (`frame`: the one the output was made for, at its
+        stamp), placed by its mounting (`_camera_mount`), moved to the stamp through
+        odometry, converted with its own settings on its own floor; or why not (counted per
+        named camera in `sources.counts` as another source's is)."""
+        seen = self._camera_seen(feed, output, base_to_output, arrived_ns, lidar_frame, frame)
+        counts = self.sources.counts
+        if feed.name not in self.sources.names:
+            pass  # the one-source parameters' camera: `counts.passed` says it all
+        elif seen.reason is None:
+            counts.note(counts.used, feed.name)
+        elif seen.reason in (Passed.NO_CAMERA_INFO, Passed.CAMERA_SILENT, Passed.NO_FRAME_NEAR):
+            counts.note(counts.missing, feed.name)
+        else:
+            counts.note(counts.no_mounting, feed.name)
+        return seen
+
+    def _camera_seen(
+        self,
+        feed: CameraFeed,
+        output: Scan,
+        base_to_output: Transform,
+        arrived_ns: int,
+        lidar_frame: str | None,
+        frame: DepthFrame | None,
+    ) -> _Seen:
         if frame is None:
-            silent = (
-                self._last_depth_ns is None
-                or pending.arrived_ns - self._last_depth_ns > self._camera_timeout_ns
-            )
-            reason = Passed.CAMERA_SILENT if silent else Passed.NO_FRAME_NEAR
-            return self._pass(pending, lidar, deskewed, reason, base_to_output)
-        choice = self.extrinsics_for(scan.frame_id, frame.optical_frame)
-        if choice.extrinsics is None:
-            self._warn_once('extrinsics', choice.source)
-            return self._pass(pending, lidar, deskewed, Passed.NO_EXTRINSICS, base_to_output)
+            if feed.model is None:
+                return _Seen(feed, Passed.NO_CAMERA_INFO)
+            frame = feed.nearest(output.stamp_ns)
+            if frame is None:
+                silent = (
+                    feed.last_arrival_ns is None
+                    or arrived_ns - feed.last_arrival_ns > self._camera_timeout_ns
+                )
+                return _Seen(feed, Passed.CAMERA_SILENT if silent else Passed.NO_FRAME_NEAR)
+            motion, compensation = self._motion(frame.stamp_ns, output.stamp_ns, base_to_output)
+        else:
+            motion, compensation = IDENTITY_MOTION, Compensation.OFF
+        mount = self._camera_mount(feed, frame, lidar_frame)
+        if mount is None:
+            return _Seen(feed, Passed.NO_EXTRINSICS, frame)
+        if motion is None:
+            return _Seen(feed, Passed.NO_MOTION, frame)
         # The camera's points are binned from the output's origin (the LiDAR's, or
         # `output_frame`'s when the LiDAR was re-binned into it).
-        paired = choice.extrinsics
-        if paired.base_to_laser != base_to_output:
-            paired = replace(paired, base_to_laser=base_to_output)
-        motion, compensation = self._motion(frame.stamp_ns, scan.stamp_ns, base_to_output)
-        if motion is None:
-            return self._pass(pending, lidar, deskewed, Passed.NO_MOTION, base_to_output)
+        paired = Extrinsics(base_to_laser=base_to_output, base_to_camera_optical=mount)
         try:
-            ground, extrinsics = self._on_ground(frame, paired)
-            profile = None if self.ground is None else self.ground.profile
-            result = self.pipeline.fuse(
-                lidar, frame.depth, frame.camera, paired, motion, ground, profile
+            ground, extrinsics = self._on_ground(feed, frame, paired)
+            profile = None if feed.ground is None else feed.ground.profile
+            result = feed.pipeline.fuse(
+                output, frame.depth, frame.camera, paired, motion, ground, profile
             )
         except ScanfuseError as err:
             self.note_malformed('fusion', err)
-            return self._pass(pending, lidar, deskewed, Passed.FUSION_FAILED, base_to_output)
-        self.counts.fused += 1
-        if compensation is Compensation.COMPENSATED:
-            self.counts.compensated += 1
-        output = StreamOutput(
-            token=pending.token,
-            lidar=lidar,
-            fused=result.fused,
-            depth_scan=result.depth_scan,
-            arrived_ns=pending.arrived_ns,
-            depth_stamp_ns=frame.stamp_ns,
-            compensation=compensation,
-            deskewed=deskewed,
-            timings=result.timings,
-        )
-        return self._remember(
-            self._with_extras(output, base_to_output), frame, extrinsics, base_to_output
-        )
+            return _Seen(feed, Passed.FUSION_FAILED, frame)
+        return _Seen(feed, None, frame, result.depth_scan, extrinsics, compensation, result.timings)
+
+    def _camera_mount(
+        self, feed: CameraFeed, frame: DepthFrame, lidar_frame: str | None
+    ) -> Transform | None:
+        """Where the camera's optical frame lies on the base; None: refused (said once).
+        With a LiDAR, TF when it relates the base to both, the parameters when TF knows
+        neither (`extrinsics_for`); without, TF when it knows the camera's frame, else the
+        parameters (`mounting`)."""
+        if lidar_frame is None:
+            mount = self.mounting(frame.optical_frame, feed.base_to_optical)
+            if mount is None:
+                self._warn_once(
+                    f'extrinsics {feed.name}',
+                    f'TF does not relate base_frame {self.config.base_frame} to the camera '
+                    f'frame {frame.optical_frame}: publish the transform or set use_tf: false',
+                )
+            return mount
+        choice = self.extrinsics_for(lidar_frame, frame.optical_frame, feed.name)
+        if choice.extrinsics is None:
+            self._warn_once('extrinsics', choice.source)
+            return None
+        return choice.extrinsics.base_to_camera_optical
 
     # ------------------------------------------------------------ no LiDAR
 
-    def _camera_triggered(self, frame: DepthFrame, now_ns: int, token: T) -> list[StreamOutput[T]]:
-        """A camera-only robot's output for `frame`, at its stamp; none (counted as a
-        fusion failure, said once) when the camera cannot be placed or the frame converted."""
+    def _camera_triggered(
+        self, feed: CameraFeed, frame: DepthFrame, now_ns: int, token: T
+    ) -> list[StreamOutput[T]]:
+        """A camera-only robot's output for `frame` of `feed` (the trigger), at its stamp;
+        none (counted as a fusion failure, said once) when the camera cannot be placed or
+        the frame converted."""
         try:
-            output, extrinsics, base_to_output = self._camera_scan(frame, now_ns, token)
-            output = self._with_extras(output, base_to_output)
-            output = self._remember(output, frame, extrinsics, base_to_output)
+            output = self._camera_output(feed, frame, now_ns, token)
         except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
             self.note_malformed('fusion', err)
             self.counts.passed[Passed.FUSION_FAILED] = (
                 self.counts.passed.get(Passed.FUSION_FAILED, 0) + 1
             )
             return []
-        self.counts.fused += 1
         return [output]
 
-    def _camera_scan(
-        self, frame: DepthFrame, now_ns: int, token: T
-    ) -> tuple[StreamOutput[T], Extrinsics, Transform]:
-        """The depth frame's scan as the output, the camera's extrinsics (on the floor found)
-        and where the output frame lies on the base.
+    def _camera_output(
+        self, feed: CameraFeed, frame: DepthFrame, now_ns: int, token: T
+    ) -> StreamOutput[T]:
+        """The output the trigger camera's `frame` makes, every other camera added as to a
+        LiDAR's scan.
 
         The row method with no output grid given is depthimage_to_laserscan: the row scan on
         its own grid (one reading per image column), labelled `output_frame` (else the depth
-        image's frame), bit for bit with `d2l_compat`. Otherwise the frame is converted onto
-        the output grid (`output.default_grid`) from `output_frame`'s origin (else
-        base_frame's), as with a LiDAR."""
+        image's frame), bit for bit with `d2l_compat`: it is the output as a LiDAR's scan is.
+        Otherwise an empty scan on the output grid (`output.default_grid`) from
+        `output_frame`'s origin (else base_frame's) takes every camera, this one first."""
         config = self.config
-        mount = self.mounting(frame.optical_frame, self._parameters.base_to_camera_optical)
-        if mount is None:
-            msg = (
-                f'TF does not relate base_frame {config.base_frame} to the camera frame '
-                f'{frame.optical_frame}: publish the transform or set use_tf: false'
-            )
-            raise TransformError(msg)
+        others = [f for f in self.sources.cameras.values() if f is not feed]
         if config.method is Method.ROW and configured_grid(config) is None:
+            mount = self._camera_mount(feed, frame, None)
+            if mount is None:
+                msg = f'TF does not place the camera frame {frame.optical_frame}'
+                raise TransformError(msg)
             # The row scan's angles turn about the camera's own vertical axis from its
             # optical axis: the camera body frame (x forward) is where it lies.
             base_to_output = mount @ BODY_TO_OPTICAL.inverse()
-            extrinsics = Extrinsics(base_to_output, mount)
-            depth_scan = self.pipeline.row_depth_scan(frame.depth, frame.camera)
-            scan = depth_scan.with_ranges(
-                depth_scan.ranges,
+            row = feed.pipeline.row_depth_scan(frame.depth, frame.camera)
+            scan = row.with_ranges(
+                row.ranges,
                 frame_id=config.output_frame or frame.frame_id or frame.camera.frame_id,
                 stamp_ns=frame.stamp_ns,
             )
             empty = empty_scan(scan.grid, scan.frame_id, scan.stamp_ns, 0.0, scan.range_max)
-            output = StreamOutput(
-                token=token,
-                lidar=empty,
-                fused=scan,
-                depth_scan=scan,
-                arrived_ns=now_ns,
-                depth_stamp_ns=frame.stamp_ns,
-                compensation=Compensation.OFF,
+            own = _Seen(feed, None, frame, None, Extrinsics(base_to_output, mount))
+            seen = [
+                own,
+                *(self._camera_contribution(f, scan, base_to_output, now_ns, None) for f in others),
+            ]
+            return self._assemble(
+                token, now_ns, seen, base_to_output, lidar=empty, fused=scan, depth_scan=scan
             )
-            return output, extrinsics, base_to_output
         frame_id = config.output_frame or config.base_frame
         base_to_output = self.base_to_output(frame_id)
         grid = default_grid(config)
         empty = empty_scan(grid, frame_id, frame.stamp_ns, config.range_min, config.range_max)
-        paired = Extrinsics(base_to_output, mount)
-        ground, extrinsics = self._on_ground(frame, paired)
-        profile = None if self.ground is None else self.ground.profile
-        result = self.pipeline.fuse(empty, frame.depth, frame.camera, paired, ground=ground,
-                                    profile=profile)  # fmt: skip
-        output = StreamOutput(
-            token=token,
-            lidar=empty,
-            fused=result.fused,
-            depth_scan=result.depth_scan,
-            arrived_ns=now_ns,
-            depth_stamp_ns=frame.stamp_ns,
-            compensation=Compensation.OFF,
-            timings=result.timings,
-        )
-        return output, extrinsics, base_to_output
+        own = self._camera_contribution(feed, empty, base_to_output, now_ns, None, frame)
+        if own.reason is not None:
+            msg = f'the camera {feed.name} could not make the output: {own.reason.value}'
+            raise TransformError(msg)
+        seen = [
+            own,
+            *(self._camera_contribution(f, empty, base_to_output, now_ns, None) for f in others),
+        ]
+        return self._assemble(token, now_ns, seen, base_to_output, lidar=empty, fused=empty)
 
     def _cloud_triggered(self, stamp_ns: int, now_ns: int, token: T) -> list[StreamOutput[T]]:
         """A clouds-only robot's output at the first cloud's stamp: every cloud's slab
-        points (`_with_extras`) on the output grid, from `output_frame`'s origin (else
+        points (`_with_sources`) on the output grid, from `output_frame`'s origin (else
         base_frame's)."""
         config = self.config
         frame_id = config.output_frame or config.base_frame
         range_max = max(cloud.range_max for cloud in config.sources.clouds)
         empty = empty_scan(default_grid(config), frame_id, stamp_ns, 0.0, range_max)
-        output = StreamOutput(token=token, lidar=empty, fused=empty, depth_scan=None,
-                              arrived_ns=now_ns)  # fmt: skip
         try:
             base_to_output = self.base_to_output(frame_id)
-            output = self._with_extras(output, base_to_output)
-            output = self._remember(output, None, None, base_to_output)
+            output = self._assemble(token, now_ns, [], base_to_output, lidar=empty, fused=empty)
         except (ScanfuseError, ArithmeticError, ValueError) as err:  # as `_settle`
             self.note_malformed('fusion', err)
             return []
@@ -925,12 +1008,12 @@ class FusionStream(Generic[T]):
         return [output]
 
     def _on_ground(
-        self, frame: DepthFrame, extrinsics: Extrinsics
+        self, feed: CameraFeed, frame: DepthFrame, extrinsics: Extrinsics
     ) -> tuple[GroundPlane | None, Extrinsics]:
         """The floor of `frame` and the mounting moved onto it (for the memory's slab): the
         mounting tilted by the IMU's pitch and roll at the frame's stamp (`imu`), then found
-        in the frame (`ground.GroundTracker`, once per frame); None and the mounting when
-        neither is on."""
+        in the frame (the camera's `GroundTracker`, once per frame); None and the mounting
+        when neither is on."""
         if self.config.method is not Method.OBSTACLE:
             return None, extrinsics
         tilt = self.imu.tilt_at(frame.stamp_ns)
@@ -942,15 +1025,16 @@ class FusionStream(Generic[T]):
             )  # fmt: skip
         mounting = extrinsics.base_to_camera_optical
         prior = GroundPlane.of_mounting(mounting if tilt is None else tilt @ mounting)
-        if self.ground is None:
+        ground = feed.ground
+        if ground is None:
             if tilt is None:
                 return None, extrinsics
             plane = prior
         else:
-            if frame.stamp_ns != self._ground_frame_ns or self.ground.estimate is None:
-                self.ground.update(frame.depth, frame.camera, prior)
-                self._ground_frame_ns = frame.stamp_ns
-            plane = self.ground.estimate or prior
+            if frame.stamp_ns != feed.ground_frame_ns or ground.estimate is None:
+                ground.update(frame.depth, frame.camera, prior)
+                feed.ground_frame_ns = frame.stamp_ns
+            plane = ground.estimate or prior
         on_ground = replace(
             extrinsics, base_to_camera_optical=plane.mounting(extrinsics.base_to_camera_optical)
         )
@@ -984,22 +1068,24 @@ class FusionStream(Generic[T]):
         return OutputLayout(grid or (lidar if wide is None else wide).grid, frame, base_to_output)
 
     def prepare(self, lidar: Scan) -> None:
-        """Build the first camera's obstacle tables for the output `lidar` makes (its frame
-        and grid, `_layout`) now, not on the first fused scan (the node calls it when
-        CameraInfo or a new LiDAR grid arrives). Whatever fails is left for that scan to
-        report."""
-        camera = self.camera
-        if camera is None or self.config.method is not Method.OBSTACLE:
+        """Build every camera's obstacle tables for the output `lidar` makes (its frame and
+        grid, `_layout`) now, not on the first fused scan (the node calls it when CameraInfo
+        or a new LiDAR grid arrives). Whatever fails is left for that scan to report."""
+        if self.config.method is not Method.OBSTACLE:
             return
-        try:
-            layout = self._layout(lidar)
-            choice = self.extrinsics_for(layout.frame, camera.frame_id)
-            if choice.extrinsics is None:
-                return
-            paired = replace(choice.extrinsics, base_to_laser=layout.base_to_output)
-            self.pipeline.prepare(camera, paired, layout.grid)
-        except ScanfuseError:
-            return
+        for feed in self.sources.cameras.values():
+            camera = feed.model
+            if camera is None:
+                continue
+            try:
+                layout = self._layout(lidar)
+                choice = self.extrinsics_for(layout.frame, camera.frame_id, feed.name)
+                if choice.extrinsics is None:
+                    continue
+                paired = replace(choice.extrinsics, base_to_laser=layout.base_to_output)
+                feed.pipeline.prepare(camera, paired, layout.grid)
+            except ScanfuseError:
+                continue
 
     def base_to_output(self, frame: str, lidar_frame: str = '') -> Transform:
         """Where the output frame `frame` lies on the base: the base itself, TF, or the
@@ -1019,52 +1105,23 @@ class FusionStream(Generic[T]):
         )
         raise TransformError(msg)
 
-    def _pass(
-        self,
-        pending: _Pending[T],
-        lidar: Scan,
-        deskewed: bool,
-        reason: Passed | None,
-        base_to_output: Transform | None = None,
-    ) -> StreamOutput[T]:
-        """The LiDAR (and the other sources) without the first camera, for `reason`; None:
-        no camera is configured, so nothing was passed over."""
-        if reason is not None:
-            self.counts.passed[reason] = self.counts.passed.get(reason, 0) + 1
-        # A driver's error values (a Hokuyo's 0.0) are published as NaN, as a fused scan's are.
-        clean = _without_error_values(lidar)
-        output = StreamOutput(
-            token=pending.token,
-            lidar=clean,
-            # A scan that is not one received message as it came is published anew.
-            fused=clean if clean is not pending.scan or pending.assembled else None,
-            depth_scan=None,
-            arrived_ns=pending.arrived_ns,
-            passed=reason,
-            deskewed=deskewed,
-        )
-        mount = base_to_output or self.base_to_laser(lidar.frame_id)
-        return self._remember(self._with_extras(output, mount), None, None, mount)
-
     # ------------------------------------------------------------ other sources
 
-    def _with_extras(self, output: StreamOutput[T], base_to_output: Transform) -> StreamOutput[T]:
-        """`output` with what the other named sources add (see `scanfuse.extras`);
+    def _with_sources(self, output: StreamOutput[T], base_to_output: Transform) -> StreamOutput[T]:
+        """`output` with what the other LiDARs and the clouds add (`scanfuse.feeds`);
         `base_to_output`: where the output frame lies on the base."""
-        if not self.extras.names:
-            return output
         base = output.fused if output.fused is not None else output.lidar
-        lidars, obstacles = self.extras.contributions(base, base_to_output, self)
+        lidars, clouds = self.sources.point_contributions(base, base_to_output, self)
         # A contribution with no reading at all changes nothing: keep the LiDAR's own bytes.
         lidars = [scan for scan in lidars if not np.isnan(scan.ranges).all()]
-        obstacles = [scan for scan in obstacles if not np.isnan(scan.ranges).all()]
-        if not (lidars or obstacles):
+        clouds = [scan for scan in clouds if not np.isnan(scan.ranges).all()]
+        if not (lidars or clouds):
             return output
         fused = base
-        for scan in (*lidars, *obstacles):
+        for scan in (*lidars, *clouds):
             fused = merge_scans(fused, scan)
         depth_scan = output.depth_scan
-        for scan in obstacles:
+        for scan in clouds:
             depth_scan = scan if depth_scan is None else merge_scans(depth_scan, scan)
         every_lidar = output.lidar
         for scan in lidars:
@@ -1096,14 +1153,11 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ memory
 
     def _remember(
-        self,
-        output: StreamOutput[T],
-        frame: DepthFrame | None,
-        extrinsics: Extrinsics | None,
-        base_to_output: Transform,
+        self, output: StreamOutput[T], paired: list[_Seen], base_to_output: Transform
     ) -> StreamOutput[T]:
         """Clear, add, forget, and merge the remembered obstacles into `output` (in the
-        output frame, which lies at `base_to_output` on the base)."""
+        output frame, which lies at `base_to_output` on the base); `paired`: the cameras
+        whose frames it took."""
         memory = self.memory
         if memory is None or not len(self.odometry):
             return output
@@ -1117,38 +1171,28 @@ class FusionStream(Generic[T]):
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
-        own = self.pipeline.config  # the first camera's slab (`reconfigure`)
-        slab = (own.min_obstacle_height, own.max_obstacle_height)
         pose = self._corrected(scan, base.pose, base_to_output)
         placement = Placement.of(pose, base_to_output)
         robot = (pose.x, pose.y)
-        if frame is not None and extrinsics is not None and frame.stamp_ns != self._cleared_with:
+        # Every camera forgets what it sees free (a rear camera behind a reversing robot)
+        # and remembers its slab, each frame once, with its own slab and floor.
+        for camera in paired:
+            feed, frame, extrinsics = camera.feed, camera.frame, camera.extrinsics
+            if frame is None or extrinsics is None or frame.stamp_ns == feed.cleared_with:
+                continue
+            profile = None if feed.ground is None else feed.ground.profile
             seen_from = self._clear_seen(
-                memory,
-                frame.stamp_ns,
-                frame.depth,
-                frame.camera,
-                extrinsics.base_to_camera_optical,
-                slab,
-                None if self.ground is None else self.ground.profile,
-            )
-            if seen_from is not None:
-                self._cleared_with = frame.stamp_ns
-                if output.depth_scan is not None:
-                    self._add_slab(
-                        memory, frame, seen_from, output.depth_scan, output.every_lidar,
-                        placement, robot,
-                    )  # fmt: skip
-        # The other cameras clear what they see free too (a rear camera behind a reversing
-        # robot), each frame once, with its own slab.
-        for seen in self.extras.seen:
-            if self._extra_cleared_with.get(seen.name) != seen.stamp_ns and (
-                self._clear_seen(
-                    memory, seen.stamp_ns, seen.depth, seen.camera, seen.base_to_optical, seen.slab
-                )
-                is not None
-            ):
-                self._extra_cleared_with[seen.name] = seen.stamp_ns
+                memory, frame.stamp_ns, frame.depth, frame.camera,
+                extrinsics.base_to_camera_optical, feed.slab, profile,
+            )  # fmt: skip
+            if seen_from is None:
+                continue
+            feed.cleared_with = frame.stamp_ns
+            if output.depth_scan is not None:
+                self._add_slab(
+                    memory, feed, frame, seen_from, output.depth_scan, output.every_lidar,
+                    placement, robot,
+                )  # fmt: skip
         if output.depth_scan is not None:
             unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen, robot=robot)
@@ -1223,6 +1267,7 @@ class FusionStream(Generic[T]):
     def _add_slab(
         self,
         memory: ObstacleMemory,
+        feed: CameraFeed,
         frame: DepthFrame,
         odom_to_optical: Transform,
         depth_scan: Scan,
@@ -1235,8 +1280,8 @@ class FusionStream(Generic[T]):
         corners, not only the face nearest the LiDAR, so that what clearing forgets of a
         place is replaced by all the camera sees there."""
         config = self.config
-        own = self.pipeline.config
-        profile = None if self.ground is None else self.ground.profile
+        own = feed.config
+        profile = None if feed.ground is None else feed.ground.profile
         x, y = slab_points(
             frame.depth,
             frame.camera,
@@ -1293,9 +1338,14 @@ class FusionStream(Generic[T]):
 
     # ------------------------------------------------------------ extrinsics
 
-    def extrinsics_for(self, scan_frame: str, camera_frame: str) -> ExtrinsicsChoice:
-        """The extrinsics of this LiDAR and camera frame, from TF or the parameters."""
-        key = (frame_name(scan_frame), frame_name(camera_frame))
+    def extrinsics_for(
+        self, scan_frame: str, camera_frame: str, source: str | None = None
+    ) -> ExtrinsicsChoice:
+        """The extrinsics of this LiDAR frame and the camera `source` names (None: the one
+        on `depth_topic`) in `camera_frame`, from TF or the parameters."""
+        feed = self.sources.camera(source)
+        name = '' if feed is None else feed.name
+        key = (frame_name(scan_frame), frame_name(camera_frame), name)
         choice = self._extrinsics.get(key)
         if choice is None:
             choice = self._extrinsics[key] = self._choose_extrinsics(*key)
@@ -1303,14 +1353,18 @@ class FusionStream(Generic[T]):
         self._extrinsics_key = key
         return choice
 
-    def _choose_extrinsics(self, laser: str, camera: str) -> ExtrinsicsChoice:
+    def _choose_extrinsics(self, laser: str, camera: str, name: str) -> ExtrinsicsChoice:
+        feed = self.sources.cameras.get(name)
+        parameters = self._parameters
+        if feed is not None:  # the camera's own mounting parameters
+            parameters = replace(parameters, base_to_camera_optical=feed.base_to_optical)
         if not self.config.use_tf:
-            return ExtrinsicsChoice(self._parameters, 'parameters (use_tf is false)')
+            return ExtrinsicsChoice(parameters, 'parameters (use_tf is false)')
         known = set(self.tf.frames)
         if laser not in known and camera not in known:
             missing = f'no {laser} or {camera} on /tf_static or /tf yet'
             return ExtrinsicsChoice(
-                self._parameters, f'parameters (TF has neither sensor frame: {missing})'
+                parameters, f'parameters (TF has neither sensor frame: {missing})'
             )
         base = frame_name(self.config.base_frame)
         try:
@@ -1421,6 +1475,17 @@ class FusionStream(Generic[T]):
         if key not in self._warned:
             self._warned.add(key)
             logger.warning(message)
+
+
+def _total_timings(timings: list[StageTimings]) -> StageTimings | None:
+    """Every camera's stage times added up (None: no camera converted a frame)."""
+    if not timings:
+        return None
+    return StageTimings(
+        sum(t.convert for t in timings),
+        sum(t.resample for t in timings),
+        sum(t.merge for t in timings),
+    )
 
 
 def _without_error_values(scan: Scan) -> Scan:

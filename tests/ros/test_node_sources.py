@@ -147,7 +147,7 @@ def test_depth_pixels_reach_the_stream_without_a_copy():
     live.on_camera_info(camera_to_cdr(scene.camera, stamp_ns=1), 0.0)
     raw = depth_to_cdr(scene.depth_mm(), frame_id=scene.camera.frame_id, stamp_ns=1)
     live.on_depth(raw, 0.0)
-    kept = live.stream._frames[-1].depth
+    kept = live.stream.sources.cameras['camera'].frames[-1].depth
     assert np.shares_memory(kept, np.frombuffer(raw, dtype=np.uint8))
 
 

@@ -830,7 +830,7 @@ class _AmrScorer:
     """
 
     def __init__(self, evaluation: Evaluation, sim: Simulation, base: FusionConfig) -> None:
-        from scanfuse.extras import mounting_transform  # noqa: PLC0415
+        from scanfuse.feeds import mounting_transform  # noqa: PLC0415
         from scanfuse.transforms import BODY_TO_OPTICAL  # noqa: PLC0415
 
         self.tallies = evaluation.amr_tallies

@@ -48,7 +48,6 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.errors import BagError, MessageError, ScanfuseError, TransformError
-from scanfuse.extras import primary_camera_config
 from scanfuse.frames import frame_name
 from scanfuse.progress import NullProgress, Progress
 from scanfuse.ros.messages import (
@@ -689,10 +688,11 @@ class _BagJob:
         self.duration_ns = reader.duration if reader.message_count else 0
         self.choice: TopicChoice | None = None
         self.intrinsics: Intrinsics | None = None
-        self.first_camera: CameraModel | None = None
-        # Bags are read in log-time order: a scan waits for the first frame stamped after it,
-        # or until no frame logged up to REORDER_S late can still be near enough.
-        pair_wait = primary_camera_config(config).max_time_offset + REORDER_S
+        self.camera_model: CameraModel | None = None
+        # Bags are read in log-time order: a scan waits for every camera's first frame stamped
+        # after it, or until no frame logged up to REORDER_S late can still be near enough.
+        windows = [s.max_time_offset or config.max_time_offset for s in config.sources.cameras]
+        pair_wait = max(windows, default=config.max_time_offset) + REORDER_S
         self.stream: FusionStream[_Lidar] = FusionStream(
             config, pair_wait=pair_wait, release_when_silent=False
         )
@@ -820,13 +820,16 @@ class _BagJob:
         return ''
 
     def _named_sources(self) -> tuple[tuple[str, str, str], ...]:
-        """Topics of the named sources beyond the primary pair; each must be in the bag."""
-        sources = self.config.sources
+        """Topics of the named sources not on the one-source topics (`scan_topic`,
+        `depth_topic`, read as those); each must be in the bag."""
+        config = self.config
+        lidars = [s for s in config.sources.lidars if s.topic != config.scan_topic]
+        cameras = [s for s in config.sources.cameras if s.depth_topic != config.depth_topic]
         wanted = [
-            *((s.topic, s.name, LASER_SCAN) for s in sources.lidars[1:]),
-            *((s.depth_topic, s.name, IMAGE) for s in sources.cameras[1:]),
-            *((s.camera_info_topic, s.name, CAMERA_INFO) for s in sources.cameras[1:]),
-            *((s.topic, s.name, POINT_CLOUD) for s in sources.clouds),
+            *((s.topic, s.name, LASER_SCAN) for s in lidars),
+            *((s.depth_topic, s.name, IMAGE) for s in cameras),
+            *((s.camera_info_topic, s.name, CAMERA_INFO) for s in cameras),
+            *((s.topic, s.name, POINT_CLOUD) for s in config.sources.clouds),
         ]
         for topic, name, kind in wanted:
             found = self.topics_types.get(topic)
@@ -938,7 +941,7 @@ class _BagJob:
         info_frame = ''
         if self.intrinsics is not None and depth is not None:
             given = self.intrinsics
-            self.first_camera = CameraModel.from_intrinsics(
+            self.camera_model = CameraModel.from_intrinsics(
                 int(depth.width), int(depth.height), given.fx, given.fy, given.cx, given.cy,
                 frame_id=str(depth.header.frame_id),
             )  # fmt: skip
@@ -950,10 +953,10 @@ class _BagJob:
                     "(give the camera's intrinsics instead: --intrinsics FX FY CX CY)"
                 )
                 raise BagError(msg)
-            self.first_camera = None if info is None else camera_from_msg(info)
+            self.camera_model = None if info is None else camera_from_msg(info)
             info_frame = '' if info is None else str(info.header.frame_id)
         self._read_mounting()
-        if scan is None or depth is None or self.first_camera is None:
+        if scan is None or depth is None or self.camera_model is None:
             return  # one sensor: no pair whose extrinsics to check
         self.scan_frame = frame_name(str(scan.header.frame_id))
         self.depth_frame = frame_name(str(depth.header.frame_id) or info_frame)
@@ -993,8 +996,8 @@ class _BagJob:
         """Copy every message, feed the stream in log-time order, write what it releases."""
         assert self.choice is not None
         stream = self.stream
-        if self.first_camera is not None:
-            stream.add_camera_info(self.first_camera)
+        if self.camera_model is not None:
+            stream.add_camera_info(self.camera_model)
         counts = {'messages_read': 0}
         times: list[float] = []
         malformed: list[MalformedMessage] = []

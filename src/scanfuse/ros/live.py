@@ -270,8 +270,8 @@ class LiveFusion:
     # ------------------------------------------------------------ inputs
 
     def _extra(self, source: str | None) -> bool:
-        """A named source other than the primary LiDAR and camera."""
-        return source is not None and source in self.stream.extras
+        """A named source not on the one-source topics (those come without a name)."""
+        return source is not None
 
     def on_scan(self, raw: RawMessage, now: float, source: str | None = None) -> list[Output]:
         self._note_start(now)
@@ -322,7 +322,7 @@ class LiveFusion:
             self.stream.note_malformed('depth image', err)
             self._window.malformed_depth += 1
             return self._outputs(self.stream.tick(_ns(now)))
-        # Without a LiDAR the first camera's frame is an output: never published as is.
+        # Without a LiDAR the trigger camera's frame is an output: never published as is.
         return self._outputs(
             self.stream.add_depth(
                 image.stamp_ns, image.depth, _ns(now), image.frame_id, source=source, token=b''
@@ -585,7 +585,7 @@ class LiveFusion:
     def _source_values(self, window: _Window) -> dict[str, str]:
         """Per named source: output scans it was used in, missing from, without mounting;
         the window's share is kept for `_sources_problem`."""
-        extras = self.stream.extras
+        extras = self.stream.sources
         counts = extras.counts
         used_before, missed_before = self._sources_reported
         values = {}

@@ -319,13 +319,14 @@ class ScanfuseNode:
         return [str(name) for name in value]
 
     def _subscribe_sources(self, config: FusionConfig, qos: Any) -> None:
-        """Every named source but the primary LiDAR and camera, fed with its name."""
+        """Every named source not on the one-source topics (`scan_topic`, `depth_topic`,
+        subscribed already), fed with its name."""
         sources = config.sources
-        for lidar in sources.lidars[1:]:
+        for lidar in (s for s in sources.lidars if s.topic != config.scan_topic):
             self.node.create_subscription(
                 LaserScan, lidar.topic, self._source_callback('scan', lidar.name), qos, raw=True
             )
-        for camera in sources.cameras[1:]:
+        for camera in (s for s in sources.cameras if s.depth_topic != config.depth_topic):
             self.node.create_subscription(
                 Image,
                 camera.depth_topic,
