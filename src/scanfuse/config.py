@@ -511,8 +511,8 @@ class FusionConfig(BaseModel):
         """Validate plain values; errors name every bad parameter.
 
         Named sources (`lidars: [...]` with a section per name) are gathered into `sources`;
-        the first LiDAR and the first camera also fill the one-source parameters (topic and
-        mounting), which then describe the primary pair.
+        the first LiDAR and camera listed (the `trigger` one first) also fill the one-source
+        parameters (topic and mounting), which then name those two among the sources.
         """
         values, named = split_sources(values)
         if named is not None:

@@ -3,16 +3,22 @@
 The bag processor, the live node and the simulator's closed loop are thin adapters that
 decode messages and feed this class; every policy lives here, once:
 
-- **Pairing.** A scan is fused with the buffered depth frame whose stamp is nearest its own
-  within `max_time_offset`. A scan newer than every frame waits (at most `pair_wait`
-  seconds of the caller's clock) for a frame stamped at or after it: frames come in stamp
-  order, so once one has, no later frame can be nearer. A scan also stops waiting when the
-  camera is silent (`camera_timeout`) or there is no CameraInfo. Scans leave in the order
-  they came: a waiting scan holds back the ones behind it, and none is ever dropped.
-- **Pass-through.** No CameraInfo, camera silent, no frame near enough, extrinsics refused,
-  odometry not covering the pair, or a fusion error: the LiDAR scan leaves unchanged
-  (`StreamOutput.fused is None`: the adapter publishes the LiDAR's own bytes), counted per
-  reason and logged once per reason.
+- **Sources.** Every camera, every LiDAR but the triggering one and every cloud adds to an
+  output by one rule (`scanfuse.feeds`): its message within its own `max_time_offset` of
+  the output stamp, moved there through odometry, placed by its own mounting. No camera is
+  special: the one-source parameters (`depth_topic`...) are one camera among the named ones.
+- **Pairing.** A scan waits for the cameras: each is fused with its buffered depth frame
+  whose stamp is nearest the scan's. A scan newer than a camera's every frame waits (at most
+  `pair_wait` seconds of the caller's clock) for a frame of it stamped at or after the scan:
+  frames come in stamp order, so once one has, no later frame can be nearer. A scan stops
+  waiting for a camera that is silent (`camera_timeout`) or has no CameraInfo. Scans leave
+  in the order they came: a waiting scan holds back the ones behind it, and none is ever
+  dropped. LiDARs and clouds are not waited for: theirs is the freshest message.
+- **Pass-through.** No camera paired (no CameraInfo, camera silent, no frame near enough,
+  extrinsics refused, odometry not covering the pair, or a fusion error) and no other
+  source adds a reading: the LiDAR scan leaves unchanged (`StreamOutput.fused is None`: the
+  adapter publishes the LiDAR's own bytes). Each output that some camera did not pair with
+  says why (`passed`, the first such camera's reason), counted per reason and logged once.
 - **Extrinsics.** From TF when it relates `base_frame` to both sensors, else from the
   mounting parameters when TF knows neither sensor frame (or `use_tf` is false); when TF
   knows a sensor frame but not its way to `base_frame`, fusion is refused with a message
@@ -29,8 +35,8 @@ decode messages and feed this class; every policy lives here, once:
   `angle_max` every `angle_increment`, the LiDAR re-binned from its points
   (`scanfuse.output`). With `publish_rate` the outputs come at that rate, each the freshest
   scan moved to its stamp (`_schedule`). Without a LiDAR (`scan_topic` empty) each frame of
-  the first camera makes an output (`_camera_triggered`), without LiDAR and camera each
-  message of the first cloud (`_cloud_triggered`).
+  the triggering camera (on `depth_topic`) makes an output (`_camera_triggered`), without
+  LiDAR and camera each message of the triggering cloud (`_cloud_triggered`).
 
 The stream has no clock of its own: every call that can release scans takes `now_ns`, the
 caller's clock (monotonic time in the node, log time in a bag, simulated time in the
@@ -801,7 +807,7 @@ class FusionStream(Generic[T]):
     ) -> StreamOutput[T]:
         """The output: `fused` (None: `lidar`'s own bytes) with every camera that paired
         merged into it, then the other LiDARs and the clouds (`_with_sources`), then the
-        memory (`_remember`). `passed`: why the first camera that did not pair did not."""
+        memory (`_remember`). `passed`: why a camera did not pair (the first such, in order)."""
         paired = [s for s in seen if s.reason is None]
         reason = next((s.reason for s in seen if s.reason is not None), None)
         if reason is not None:

@@ -585,24 +585,24 @@ class LiveFusion:
     def _source_values(self, window: _Window) -> dict[str, str]:
         """Per named source: output scans it was used in, missing from, without mounting;
         the window's share is kept for `_sources_problem`."""
-        extras = self.stream.sources
-        counts = extras.counts
+        sources = self.stream.sources
+        counts = sources.counts
         used_before, missed_before = self._sources_reported
         values = {}
-        for name in extras.names:
+        for name in sources.names:
             used = counts.used.get(name, 0)
             missing = counts.missing.get(name, 0)
             no_mounting = counts.no_mounting.get(name, 0)
             window.source_used[name] = used - used_before.get(name, 0)
             window.source_missed[name] = missing + no_mounting - missed_before.get(name, 0)
             values[f'source {name}'] = f'used {used}, missing {missing}, no mounting {no_mounting}'
-            if name in extras.clouds:
+            if name in sources.clouds:
                 values[f'source {name}'] += f', no-return points {counts.no_return.get(name, 0)}'
         self._sources_reported = (
-            {name: counts.used.get(name, 0) for name in extras.names},
+            {name: counts.used.get(name, 0) for name in sources.names},
             {
                 name: counts.missing.get(name, 0) + counts.no_mounting.get(name, 0)
-                for name in extras.names
+                for name in sources.names
             },
         )
         return values
