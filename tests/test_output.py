@@ -357,3 +357,92 @@ def test_a_trigger_that_is_no_source_or_cannot_trigger_is_refused():
     with pytest.raises(ConfigError, match=r"trigger 'depth' is a camera: .* without a LiDAR"):
         FusionConfig.from_dict(cameras)
     assert FusionConfig.from_dict({**cameras, 'scan_topic': ''}).trigger == 'depth'
+
+
+# ------------------------------------------------------------------ limits and no return
+
+
+def open_field_scan(origin, yaw, *, free_from: float = -math.pi):
+    """`lidar_scan` of the front LiDAR with no return (+Inf) at every beam whose own angle
+    is above `free_from` (-pi: every beam), the room's walls at the others."""
+    scan = lidar_scan(origin, yaw, 1080, FOV, 'front')
+    ranges = np.where(scan.angles() > free_from, np.inf, scan.ranges).astype(np.float32)
+    return scan.with_ranges(ranges)
+
+
+def bearing_between(scan, low: float, high: float) -> np.ndarray:
+    angles = scan.angles()
+    return (angles > low) & (angles < high)
+
+
+def test_a_lidars_no_return_stays_no_return_in_base_link():
+    # The front LiDAR faces pi/4 and sees 270 degrees: far away, where its origin's offset
+    # no longer matters, it looks along base_link bearings from -pi/2 to pi; behind its back
+    # (bearings -pi to -pi/2) it says nothing. No return (+Inf) must stay +Inf there (REP-117:
+    # free as far as it sees), not become NaN (no measurement), and NaN behind it.
+    stream: FusionStream[int] = FusionStream(lidars_only())
+    (out,) = stream.add_scan(open_field_scan(*FRONT), 1, NS)
+    assert out.fused is not None
+    margin = math.radians(1.0)
+    seen = bearing_between(out.fused, -math.pi / 2 + margin, math.pi - margin)
+    behind = bearing_between(out.fused, -math.pi + margin, -math.pi / 2 - margin)
+    assert np.isposinf(out.fused.ranges[seen]).all()
+    assert np.isnan(out.fused.ranges[behind]).all()
+
+
+def test_no_return_beside_walls_keeps_the_walls_true():
+    # Beams at the LiDAR's own angles above 0 (base_link bearings above pi/4) return
+    # nothing; the others see the room. The walls stay within 2 cm of the room's truth from
+    # base_link; well inside the free sector (20 degrees from its edge: a wall point seen
+    # from the corner lies up to atan(0.36 / 1.5) = 14 degrees off its bearing from the
+    # LiDAR) every slot is +Inf.
+    stream: FusionStream[int] = FusionStream(lidars_only())
+    (out,) = stream.add_scan(open_field_scan(*FRONT, free_from=0.0), 1, NS)
+    assert out.fused is not None
+    _, error = covered_and_true(out.fused)
+    assert error <= 0.02
+    margin = math.radians(20.0)
+    free = bearing_between(out.fused, math.pi / 4 + margin, math.pi - margin)
+    assert np.isposinf(out.fused.ranges[free]).all()
+    walls = bearing_between(out.fused, -math.pi / 2 + margin, math.pi / 4 - margin)
+    assert np.isfinite(out.fused.ranges[walls]).all()
+
+
+def test_output_range_limits_drop_the_near_and_free_the_far():
+    # The room from base_link reads 2.0 m (axes) to 2.83 m (corners). With output limits
+    # 2.1 .. 2.3 m: a wall nearer than 2.1 m is dropped (NaN), one farther than 2.3 m is no
+    # return within range (+Inf), those between stay true; the scan says 2.1 .. 2.3.
+    stream: FusionStream[int] = FusionStream(
+        lidars_only(output_range_min=2.1, output_range_max=2.3)
+    )
+    rear = lidar_scan(*REAR, 1080, FOV, 'rear')
+    stream.add_scan(rear, 0, NS, source='rear')
+    (out,) = stream.add_scan(lidar_scan(*FRONT, 1080, FOV, 'front'), 1, NS + 1)
+    assert out.fused is not None
+    assert (out.fused.range_min, out.fused.range_max) == (2.1, 2.3)
+    truth = square_room_ranges((0.0, 0.0), 0.0, out.fused.angles(), HALF)
+    ranges = out.fused.ranges
+    covered = ~np.isnan(lidar_scan_union(rear))
+    near, far = truth < 2.05, truth > 2.35
+    between = (truth > 2.15) & (truth < 2.25)
+    assert near.any()
+    assert far.any()
+    assert between.any()
+    assert np.isnan(ranges[near]).all()
+    assert np.isposinf(ranges[far & covered]).all()
+    np.testing.assert_allclose(ranges[between & covered], truth[between & covered], atol=0.02)
+
+
+def lidar_scan_union(rear) -> np.ndarray:
+    """Slots either LiDAR reads a wall in, without output limits (the same two scans)."""
+    free: FusionStream[int] = FusionStream(lidars_only())
+    free.add_scan(rear, 0, NS, source='rear')
+    (out,) = free.add_scan(lidar_scan(*FRONT, 1080, FOV, 'front'), 1, NS + 1)
+    assert out.fused is not None
+    return out.fused.ranges
+
+
+def test_output_range_max_not_above_output_range_min_is_refused():
+    refused = r'output_range_max \(1.0\) must be above output_range_min'
+    with pytest.raises(ConfigError, match=refused):
+        lidars_only(output_range_min=2.0, output_range_max=1.0)

@@ -301,6 +301,26 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description='last angle of the output grid, radians (with angle_increment or no LiDAR)',
     )
+    output_range_min: float = Field(
+        0.0,
+        ge=0.0,
+        le=MAX_RANGE,
+        allow_inf_nan=False,
+        description=(
+            "output scan's range_min, metres (range_min is the depth camera's); a reading "
+            "nearer is dropped (NaN, REP-117); 0: the sources' own"
+        ),
+    )
+    output_range_max: float = Field(
+        0.0,
+        ge=0.0,
+        le=MAX_RANGE,
+        allow_inf_nan=False,
+        description=(
+            "output scan's range_max, metres; a reading farther is no return within range "
+            "(+Inf, REP-117); 0: the sources' own"
+        ),
+    )
     trigger: str = Field(
         '',
         description=(
@@ -480,6 +500,12 @@ class FusionConfig(BaseModel):
             msg = (
                 'publish_rate moves LiDAR scans to its stamps and needs a LiDAR; without one '
                 'every depth frame (or cloud) makes an output: set publish_rate: 0'
+            )
+            raise ValueError(msg)
+        if 0.0 < self.output_range_max <= self.output_range_min:
+            msg = (
+                f'output_range_max ({self.output_range_max}) must be above output_range_min '
+                f"({self.output_range_min}); 0 keeps the sources' own range_max"
             )
             raise ValueError(msg)
         if self.angle_increment > 0.0 and self.angle_max <= self.angle_min:

@@ -1,5 +1,6 @@
-"""The output scan's frame and grid (`output_frame`, `angle_min`, `angle_max`,
-`angle_increment`), and a LiDAR's readings re-binned onto it from their 3D points.
+"""The output scan's frame, grid and limits (`output_frame`, `angle_min`, `angle_max`,
+`angle_increment`, `output_range_min`, `output_range_max`), and a LiDAR's readings re-binned
+onto it from their 3D points.
 
 Pure: arrays and transforms in, scans out. `FusionStream` decides which frame holds and
 where it lies on the base (TF or the mountings).
@@ -23,6 +24,8 @@ from scanfuse.motion import IDENTITY_MOTION
 from scanfuse.scan import AngleGrid, Scan
 
 if TYPE_CHECKING:
+    import numpy.typing as npt
+
     from scanfuse.config import FusionConfig
     from scanfuse.motion import PlanarMotion
     from scanfuse.transforms import Transform
@@ -58,6 +61,22 @@ def grid_between(angle_min: float, angle_max: float, increment: float) -> AngleG
     return AngleGrid(angle_min, increment, max(count, 1))
 
 
+def within_limits(scan: Scan, range_min: float, range_max: float) -> Scan:
+    """`scan` published with `range_min` and `range_max` (0: its own), as REP-117 has a
+    reading outside them: one nearer than range_min is dropped (NaN: no valid measurement,
+    the robot's own body or a sensor's near blind zone as pointcloud_to_laserscan drops
+    them), one farther than range_max is +Inf (nothing within range that way)."""
+    low = range_min if range_min > 0.0 else scan.range_min
+    high = range_max if range_max > 0.0 else scan.range_max
+    if (low, high) == (scan.range_min, scan.range_max):
+        return scan
+    ranges = scan.ranges.copy()
+    with np.errstate(invalid='ignore'):
+        ranges[np.isfinite(ranges) & (ranges < low)] = np.nan
+        ranges[np.isfinite(ranges) & (ranges > high)] = np.inf
+    return scan.with_ranges(ranges, range_min=low, range_max=high)
+
+
 def empty_scan(
     grid: AngleGrid, frame_id: str, stamp_ns: int, range_min: float, range_max: float
 ) -> Scan:
@@ -87,10 +106,11 @@ def rebinned_lidar(
 ) -> Scan:
     """`scan`'s finite readings as points, placed in the output frame and binned on `grid`
     (nearest per slot), with `scan`'s stamp and times; or moved by `motion` (in the output
-    frame, from `scan`'s stamp to `stamp_ns`) and stamped then. Readings without a point (+Inf, NaN)
-    become NaN: no reading in the output frame. The limits: 0 (a reading from another origin
-    may be nearer than the LiDAR's own range_min) up to the LiDAR's range_max plus its
-    distance from the output origin."""
+    frame, from `scan`'s stamp to `stamp_ns`) and stamped then. A slot no point falls in is
+    +Inf where a beam of `scan` with no return (+Inf) points (`_no_return_slots`: far away
+    every origin sees a direction alike), else NaN: no reading in the output frame. The
+    limits: 0 (a reading from another origin may be nearer than the LiDAR's own range_min) up
+    to the LiDAR's range_max plus its distance from the output origin."""
     laser_in_output = base_to_output.inverse() @ base_to_laser
     offset = float(np.hypot(*laser_in_output.translation[:2]))
     range_max = float(scan.range_max) + offset
@@ -105,9 +125,41 @@ def rebinned_lidar(
         range_min=0.0,
         range_max=range_max,
     )
+    ranges = binned.ranges
+    free = _no_return_slots(scan, laser_in_output, grid, motion)
+    if free is not None:
+        ranges = np.where(free & np.isnan(ranges), np.float32(np.inf), ranges)
     return binned.with_ranges(
-        binned.ranges,
+        ranges,
         frame_id=frame_id,
         stamp_ns=scan.stamp_ns if stamp_ns is None else stamp_ns,
         scan_time=scan.scan_time,
     )
+
+
+def _no_return_slots(
+    scan: Scan, laser_in_output: Transform, grid: AngleGrid, motion: PlanarMotion
+) -> npt.NDArray[np.bool_] | None:
+    """Per slot of `grid`: some beam of `scan` without a return (+Inf) points into it, its
+    direction turned into the output frame (and by `motion`); None when no beam is +Inf.
+    Each beam covers its own slot's interval (sampled finer than both increments), so a
+    coarser LiDAR leaves no gaps on a finer output grid."""
+    free_beams = np.isposinf(scan.ranges)
+    if not free_beams.any():
+        return None
+    step = abs(scan.angle_increment)
+    count = 2 * max(1, math.ceil(step / abs(grid.angle_increment)))
+    offsets = ((np.arange(count) + 0.5) / count - 0.5) * step  # half an output slot apart
+    beams = scan.angles()[free_beams]
+    angles = (beams[:, None] + offsets[None, :]).ravel()
+    rotation = laser_in_output.matrix[:2, :2]
+    x = rotation[0, 0] * np.cos(angles) + rotation[0, 1] * np.sin(angles)
+    y = rotation[1, 0] * np.cos(angles) + rotation[1, 1] * np.sin(angles)
+    # A beam tilted out of the plane still has its bearing; one pointing straight up or
+    # down has none.
+    flat = np.hypot(x, y) > 1e-6
+    bearing = np.arctan2(y[flat], x[flat]) + motion.angle
+    slots = grid.slot_of(bearing)
+    free = np.zeros(grid.count, dtype=bool)
+    free[slots[slots >= 0]] = True
+    return free

@@ -72,7 +72,13 @@ from scanfuse.memory import (
     worth_remembering,
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
-from scanfuse.output import configured_grid, default_grid, empty_scan, rebinned_lidar
+from scanfuse.output import (
+    configured_grid,
+    default_grid,
+    empty_scan,
+    rebinned_lidar,
+    within_limits,
+)
 from scanfuse.pipeline import StageTimings
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
@@ -835,7 +841,18 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=_total_timings([s.timings for s in paired if s.timings is not None]),
         )
-        return self._remember(self._with_sources(output, base_to_output), paired, base_to_output)
+        output = self._remember(self._with_sources(output, base_to_output), paired, base_to_output)
+        return self._limited(output)
+
+    def _limited(self, output: StreamOutput[T]) -> StreamOutput[T]:
+        """`output` within `output_range_min` .. `output_range_max` when they are set
+        (`output.within_limits`); published anew then, never as the LiDAR's own bytes."""
+        config = self.config
+        if not (config.output_range_min > 0.0 or config.output_range_max > 0.0):
+            return output
+        low, high = config.output_range_min, config.output_range_max
+        fused = output.fused if output.fused is not None else output.lidar
+        return replace(output, fused=within_limits(fused, low, high))
 
     # ------------------------------------------------------------ cameras
 
