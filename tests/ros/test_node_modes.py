@@ -10,20 +10,36 @@ import math
 import numpy as np
 import pytest
 
-from scanfuse.ros.messages import scan_from_cdr, typestore
+from scanfuse.motion import PlanarPose
+from scanfuse.ros.messages import (
+    LASER_SCAN,
+    ODOMETRY,
+    POINT_CLOUD,
+    OdometrySample,
+    cloud_to_cdr,
+    odometry_to_cdr,
+    scan_from_cdr,
+    scan_to_cdr,
+    typestore,
+)
 from tests.ros.test_node_dds import loopback_factory  # noqa: F401 - the fixture
 from tests.support.modes import (
     D2L_RANGE,
     FRONT,
+    OMEGA,
     REAR,
     SMALL_CAMERA,
+    box_cloud,
     camera_messages,
     camera_only_params,
     d2l_images,
+    lidar_in_world,
     lidar_messages,
     room_truth,
+    turning_scan,
 )
 from tests.support.reference import d2l_scan_loop
+from tests.support.render import square_room_ranges
 from tests.support.synthetic import write_bag
 
 pytest.importorskip('rclpy')
@@ -119,3 +135,77 @@ def test_camera_only_row_d2l_over_dds_is_depthimage_to_laserscan(tmp_path, loopb
     reports = _diagnostics(received)
     assert any(h['level'] == '0' and float(h['paired rate (Hz)']) > 0 for h in reports), reports
     assert not [h for h in reports if 'lidar' in h['message'].lower()], reports
+
+
+def test_a_fixed_rate_over_dds_moves_a_turning_robots_scans(tmp_path, loopback_factory):  # noqa: F811
+    # The robot of tests/test_output.py: turning on the spot at 1 rad/s, a LiDAR 0.2 m ahead
+    # of the base at 10 Hz, odometry at 100 Hz; the node publishes at 20 Hz, each output the
+    # freshest scan moved to its stamp: the room's walls as the LiDAR sees them then.
+    messages = []
+    for k in range(201):
+        t_ns = 1_000_000_000 + k * 10_000_000
+        pose = PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9)
+        odometry = odometry_to_cdr(OdometrySample(t_ns, 'odom', 'base_link', pose))
+        messages.append(('/odom', ODOMETRY, t_ns, odometry))
+        if k % 10 == 0:
+            messages.append(('/scan', LASER_SCAN, t_ns, scan_to_cdr(turning_scan(t_ns))))
+    bag = write_bag(tmp_path / 'in.mcap', messages)
+    params = {
+        'use_tf': False,
+        'memory': False,
+        'depth_topic': "''",
+        'publish_rate': 20.0,
+        'lidar_x': 0.2,
+    }
+    loop = loopback_factory(**params)
+    loop.record('/scan_fused')
+    player = loop.play(bag, '--wait-for', '/odom')
+    assert player.wait(timeout=60) == 0, loop.log('player')
+    received = loop.received(linger=1.5)
+    scans = [scan_from_cdr(raw) for _, raw in received.get('/scan_fused', [])]
+    for scan in scans:
+        assert scan.stamp_ns % 50_000_000 == 0  # on the rate's stamps, k / 20 Hz
+        origin, yaw = lidar_in_world(scan.stamp_ns / 1e9)
+        truth = square_room_ranges(origin, yaw, scan.angles(), 2.0)
+        finite = np.isfinite(scan.ranges)
+        assert finite.mean() >= 0.95
+        np.testing.assert_allclose(scan.ranges[finite], truth[finite], atol=0.02)
+    # 2 s of scans at 20 Hz: 41 stamps; best effort may lose a few, start-up a few more.
+    assert len({scan.stamp_ns for scan in scans}) >= 20, loop.log('node')
+
+
+def test_clouds_only_over_dds_find_the_slab_box_not_the_floor(tmp_path, loopback_factory):  # noqa: F811
+    # pointcloud_to_laserscan's use: a 3D sensor 1 m up at the base origin sees the floor and
+    # a box whose near face is 1.5 m ahead, 0.4 m wide (`modes.box_cloud`); the output, in
+    # base_link, holds the face and nothing else.
+    points = box_cloud().astype(np.float32)
+    stamps = [1_000_000_000 + k * 100_000_000 for k in range(20)]
+    messages = [
+        ('/points', POINT_CLOUD, t, cloud_to_cdr(points, frame_id='points', stamp_ns=t))
+        for t in stamps
+    ]
+    bag = write_bag(tmp_path / 'in.mcap', messages)
+    params = {
+        'scan_topic': "''",
+        'depth_topic': "''",
+        'use_tf': False,
+        'memory': False,
+        'obstacle_min_points': 1,
+        'clouds': '[points]',
+        'points.topic': '/points',
+        'points.z': 1.0,
+    }
+    loop = loopback_factory(**params)
+    loop.record('/scan_fused')
+    player = loop.play(bag, '--wait-for', '/points')
+    assert player.wait(timeout=60) == 0, loop.log('player')
+    received = loop.received(linger=1.5)
+    scans = [scan_from_cdr(raw) for _, raw in received.get('/scan_fused', [])]
+    for scan in scans:
+        assert scan.frame_id == 'base_link'
+        assert scan.stamp_ns in stamps
+        angles = scan.angles()
+        ahead = np.abs(angles) < np.arctan2(0.18, 1.5)
+        np.testing.assert_allclose(scan.ranges[ahead], 1.5 / np.cos(angles[ahead]), atol=0.03)
+        assert not np.isfinite(scan.ranges[np.abs(angles) > np.arctan2(0.25, 1.5)]).any()
+    assert len(scans) >= 5, loop.log('node')

@@ -29,13 +29,14 @@ import rclpy.utilities
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
-from sensor_msgs.msg import CameraInfo, Image, LaserScan
+from sensor_msgs.msg import CameraInfo, Image, LaserScan, PointCloud2
 
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
     ODOMETRY,
+    POINT_CLOUD,
     TF_MESSAGE,
     depth_to_cdr,
     typestore,
@@ -57,6 +58,7 @@ def _ros_types() -> dict[str, Any]:
         IMAGE: Image,
         CAMERA_INFO: CameraInfo,
         DIAGNOSTICS: DiagnosticArray,
+        POINT_CLOUD: PointCloud2,
     }
     try:
         from tf2_msgs.msg import TFMessage
