@@ -15,9 +15,10 @@ A parameter file may name several LiDARs, depth cameras and point clouds:
 
 The first LiDAR (or the one `trigger` names) triggers every output scan and gives its
 frame and grid unless `output_frame` and `angle_increment` set them (slam_toolbox needs a
-constant reading count); every other source contributes its freshest message within its own
-`max_time_offset`, moved to the output stamp. Without a LiDAR (`scan_topic: ''`) the first
-camera's frames trigger, without LiDAR and camera the first cloud's messages. The
+constant reading count); every other source, every camera alike, contributes by one rule
+(`scanfuse.feeds`): its message within its own `max_time_offset`, moved to the output stamp.
+Without a LiDAR (`scan_topic: ''`) the camera listed first (or the `trigger` one) makes the
+outputs, without LiDAR and camera the cloud listed first. The
 single-LiDAR, single-camera parameters (`scan_topic`, `depth_topic`, `lidar_*`, `camera_*`)
 are the one-source case: a named first LiDAR or camera takes their place; an empty topic
 is no such sensor.

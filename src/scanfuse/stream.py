@@ -979,7 +979,10 @@ class FusionStream(Generic[T]):
         if config.method is Method.ROW and configured_grid(config) is None:
             mount = self._camera_mount(feed, frame, None)
             if mount is None:
-                msg = f'TF does not place the camera frame {frame.optical_frame}'
+                msg = (
+                    f'TF does not relate base_frame {config.base_frame} to the camera frame '
+                    f'{frame.optical_frame}: publish the transform or set use_tf: false'
+                )
                 raise TransformError(msg)
             # The row scan's angles turn about the camera's own vertical axis from its
             # optical axis: the camera body frame (x forward) is where it lies.
@@ -1005,7 +1008,12 @@ class FusionStream(Generic[T]):
         empty = empty_scan(grid, frame_id, frame.stamp_ns, config.range_min, config.range_max)
         own = self._camera_contribution(feed, empty, base_to_output, now_ns, None, frame)
         if own.reason is not None:
-            msg = f'the camera {feed.name} could not make the output: {own.reason.value}'
+            hint = (
+                ': publish the transform from base_frame to its frame, or set use_tf: false'
+                if own.reason is Passed.NO_EXTRINSICS
+                else ' (the malformed counts say why)'
+            )
+            msg = f'the camera {feed.name} makes no output, {own.reason.value}{hint}'
             raise TransformError(msg)
         seen = [
             own,
