@@ -616,3 +616,54 @@ def test_what_a_second_lidar_sees_is_not_remembered_from_the_rear_camera():
         kept.append(len(stream.memory))
     assert kept[0] == 0
     assert kept[1] > 0
+
+
+# ------------------------------------------------------------------ every camera alike
+
+REAR_CAMERA = replace(CAMERA, frame_id='rear_optical')
+
+
+def both_cameras_fused(order: list[str]) -> Scan:
+    """One scan fused with the front camera's box ahead and the rear camera's box behind,
+    the cameras listed in `order` and fed by name only."""
+    stream: FusionStream[int] = FusionStream(front_and_rear_cameras(cameras=order))
+    stream.add_camera_info(CAMERA, source='front_depth')
+    stream.add_camera_info(REAR_CAMERA, source='rear_depth')
+    front = depth_image(CAMERA, camera_pose(0.0), [BOX_AHEAD])
+    rear = depth_image(REAR_CAMERA, camera_pose(math.pi), [BOX_BEHIND])
+    stream.add_depth(NS - 10, front, NS, 'front_optical', source='front_depth')
+    stream.add_depth(NS - 20, rear, NS, 'rear_optical', source='rear_depth')
+    (out,) = stream.add_scan(base_lidar(), 1, NS + 1)
+    assert out.passed is None
+    assert out.fused is not None
+    return out.fused
+
+
+def test_the_camera_listed_first_is_no_different_from_the_others():
+    # The same frames, the cameras listed either way round: the same scan, both boxes at
+    # 1.5 m (their near faces, ahead and behind).
+    first = both_cameras_fused(['front_depth', 'rear_depth'])
+    swapped = both_cameras_fused(['rear_depth', 'front_depth'])
+    np.testing.assert_array_equal(first.ranges, swapped.ranges)
+    assert reading(first, 0.0) == pytest.approx(1.5, abs=0.02)
+    assert reading(first, math.pi) == pytest.approx(1.5, abs=0.02)
+
+
+def test_a_scan_waits_for_every_camera_and_takes_each_ones_nearest_frame():
+    # The rear camera's frame 10 ms before the scan shows the box behind; its next frame,
+    # 40 ms after the scan, shows it gone. The scan waits for that frame (frames come in
+    # stamp order: no later one can be nearer), then takes the nearer one: the box. A rule
+    # of "the freshest frame" would have taken the later, empty one.
+    stream: FusionStream[int] = FusionStream(front_and_rear_cameras(), pair_wait=1.0)
+    stream.add_camera_info(CAMERA)
+    stream.add_camera_info(REAR_CAMERA, source='rear_depth')
+    stream.add_depth(NS + 5, depth_image(CAMERA, camera_pose(0.0), []), NS, 'front_optical')
+    with_box = depth_image(REAR_CAMERA, camera_pose(math.pi), [BOX_BEHIND])
+    stream.add_depth(NS - 10, with_box, NS, 'rear_optical', source='rear_depth')
+    assert stream.add_scan(base_lidar(), 1, NS + 1) == []  # the rear camera has no later frame
+    empty = depth_image(REAR_CAMERA, camera_pose(math.pi), [])
+    (out,) = stream.add_depth(NS + 40_000_000, empty, NS + 2, 'rear_optical', source='rear_depth')
+    assert out.token == 1
+    assert out.fused is not None
+    assert reading(out.fused, math.pi) == pytest.approx(1.5, abs=0.02)
+    assert reading(out.fused, 0.0) == math.inf  # the front camera's frame: nothing ahead
