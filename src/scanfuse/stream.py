@@ -1063,7 +1063,8 @@ class FusionStream(Generic[T]):
             plane = prior
         else:
             if frame.stamp_ns != feed.ground_frame_ns or ground.estimate is None:
-                ground.update(frame.depth, frame.camera, prior)
+                base = None if tilt is None else GroundPlane.of_mounting(mounting)
+                ground.update(frame.depth, frame.camera, prior, base)
                 feed.ground_frame_ns = frame.stamp_ns
             plane = ground.estimate or prior
         on_ground = replace(
