@@ -46,6 +46,8 @@ pytest.importorskip('rclpy')
 
 pytestmark = pytest.mark.ros
 
+START_UP = 300_000_000  # ns of scene time the node may take to hear the first odometry
+
 
 def _diagnostics(received) -> list[dict[str, str]]:
     """Every health report: level, message and values."""
@@ -162,7 +164,14 @@ def test_a_fixed_rate_over_dds_moves_a_turning_robots_scans(tmp_path, loopback_f
     player = loop.play(bag, '--wait-for', '/odom')
     assert player.wait(timeout=60) == 0, loop.log('player')
     received = loop.received(linger=1.5)
-    scans = [scan_from_cdr(raw) for _, raw in received.get('/scan_fused', [])]
+    # Under load the first scan may reach the node before any odometry sample: the stream
+    # then moves nothing ("no odometry": fusing as if standing still), one period's turn off.
+    # From START_UP of scene time on, odometry is there.
+    scans = [
+        scan
+        for _, raw in received.get('/scan_fused', [])
+        if (scan := scan_from_cdr(raw)).stamp_ns >= 1_000_000_000 + START_UP
+    ]
     for scan in scans:
         assert scan.stamp_ns % 50_000_000 == 0  # on the rate's stamps, k / 20 Hz
         origin, yaw = lidar_in_world(scan.stamp_ns / 1e9)
@@ -170,7 +179,7 @@ def test_a_fixed_rate_over_dds_moves_a_turning_robots_scans(tmp_path, loopback_f
         finite = np.isfinite(scan.ranges)
         assert finite.mean() >= 0.95
         np.testing.assert_allclose(scan.ranges[finite], truth[finite], atol=0.02)
-    # 2 s of scans at 20 Hz: 41 stamps; best effort may lose a few, start-up a few more.
+    # 2 s of scans at 20 Hz: 41 stamps, 35 after START_UP; best effort may lose a few.
     assert len({scan.stamp_ns for scan in scans}) >= 20, loop.log('node')
 
 
