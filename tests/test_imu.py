@@ -153,3 +153,17 @@ def test_the_tilt_at_a_frame_is_the_mean_of_the_samples_around_it():
     assert math.degrees(pitch) == pytest.approx(2.0 - 0.3 / 9.0, abs=1e-6)
     assert roll == pytest.approx(0.0, abs=1e-9)
     assert history.tilt_at(NS + 200_000_000) is None  # 150 ms past the last sample
+
+
+@pytest.mark.parametrize('grade', [12.0, 8.0])
+def test_a_robot_standing_on_a_ramp_reports_the_box_on_it_and_not_the_ramp(grade):
+    # The IMU gives the body's tilt against gravity: nose-up by the ramp's slope. The floor
+    # the camera sees is the ramp the wheels stand on, the mounting's own plane, 4.8 or 7.1
+    # deg from the level floor the IMU's tilt puts under the robot (beyond ground_max_tilt
+    # on the 1:8 ramp): the ramp is floor and the box on it is the box.
+    slope = math.degrees(math.atan(1.0 / grade))
+    depth = millimetres(box_depth(CAMERA, optical_pose(), [BOX]))
+    scan, stream = fused_with_imu(depth, body_quaternion(0.0, -slope))
+    assert score(scan) == (0.0, 1.0)
+    assert stream.ground is not None
+    assert stream.ground.counts.estimated == 1

@@ -212,11 +212,15 @@ class FusionConfig(BaseModel):
         ),
     )
     ground_max_tilt: float = Field(
-        math.radians(6.0),
+        math.radians(10.0),
         gt=0.0,
         lt=math.pi / 4,
         allow_inf_nan=False,
-        description="radians the floor found in a frame may tilt from the mounting's plane",
+        description=(
+            "radians the floor found in a frame may tilt from the mounting's plane: the "
+            "steepest floor (max_slope, 7.1 deg) and the body's pitch on it (about 3 deg), so "
+            'a robot at the foot of a 1:8 ramp sees the ramp as floor'
+        ),
     )
     ground_max_offset: float = Field(
         0.08,

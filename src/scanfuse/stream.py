@@ -948,7 +948,8 @@ class FusionStream(Generic[T]):
             plane = prior
         else:
             if frame.stamp_ns != self._ground_frame_ns or self.ground.estimate is None:
-                self.ground.update(frame.depth, frame.camera, prior)
+                base = None if tilt is None else GroundPlane.of_mounting(mounting)
+                self.ground.update(frame.depth, frame.camera, prior, base)
                 self._ground_frame_ns = frame.stamp_ns
             plane = self.ground.estimate or prior
         on_ground = replace(

@@ -167,6 +167,24 @@ def test_a_frame_without_floor_keeps_the_last_estimate():
     assert (false, right) == (0.0, 1.0)
 
 
+def test_while_no_floor_is_found_the_learnt_tilt_fades_back_to_the_prior():
+    # A plane held for good would keep a ramp's half-climbed tilt at its foot, where the
+    # camera sees only ramp: it fades by FALLBACK_FADE (0.1) a frame, half in 7 frames.
+    floor = millimetres(box_depth(CAMERA, optical_pose(body_pitch=2.0), [BOX]))
+    prior = GroundPlane.of_mounting(optical_pose())
+    tracker = GroundTracker(GroundSettings())
+    learnt = math.degrees(tracker.update(floor, CAMERA, prior).tilt_from(prior))
+    assert learnt == pytest.approx(2.0, abs=0.1)
+    blank = np.zeros_like(floor)
+    for _ in range(7):
+        tilt = math.degrees(tracker.update(blank, CAMERA, prior).tilt_from(prior))
+    assert tilt == pytest.approx(learnt * 0.9**7, abs=0.01)
+    for _ in range(50):
+        tilt = math.degrees(tracker.update(blank, CAMERA, prior).tilt_from(prior))
+    assert tilt < 0.02
+    assert tracker.counts.fell_back == 57
+
+
 def test_a_platform_as_wide_as_the_view_is_not_taken_for_the_floor():
     # A 6 cm platform from 0.8 m on fills most of the view: its top is a plane within the
     # bounds (6 cm above the floor) with more points than the floor, but the floor lies below
@@ -361,9 +379,8 @@ def test_a_ramp_starting_near_the_robot_does_not_tilt_the_floor_plane(start, ris
 
 @pytest.mark.parametrize('rise', [1.0 / 12.0, 1.0 / 8.0], ids=['1:12', '1:8'])
 def test_a_ramp_from_under_the_robots_front_is_floor_and_the_box_on_it_an_obstacle(rise):
-    # The ramp's foot 0.2 m ahead: the camera sees no floor that is not ramp (a 1:8 ramp is
-    # 7.1 deg, beyond ground_max_tilt: no plane fits it, the profile climbs it from the
-    # first floor seen).
+    # The ramp's foot 0.2 m ahead: the camera sees no floor that is not ramp; its plane
+    # (7.1 deg for 1:8, within ground_max_tilt) is the floor.
     under = rise * (RAMP_BOX - 0.2)
     box = (RAMP_BOX, RAMP_BOX + 0.3, -0.3, 0.3, under - 0.05, under + BOX_HEIGHT)
     depth = millimetres(slope_depth(CAMERA, optical_pose(), start=0.2, rise=rise, boxes=[box]))
@@ -441,7 +458,8 @@ def test_the_fit_without_numba_gives_the_compiled_fits_plane():
         out = np.empty(7)
         fit(
             flat, scale, sample.indices, sample.rays, np.array([*prior.normal, prior.offset]),
-            np.array([*prior.normal, prior.offset]), settings.max_offset, settings.max_tilt,
+            np.array([*prior.normal, prior.offset]), np.array([*prior.normal, prior.offset]),
+            settings.max_offset, settings.max_tilt,
             settings.reach, settings.inlier_distance, settings.depth_noise, sample.draws,
             settings.min_points, settings.min_spread, out,
         )  # fmt: skip

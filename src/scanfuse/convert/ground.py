@@ -15,7 +15,9 @@ the camera's optical frame, with the mounting's plane as the prior:
   ramp's foot or a crest ahead: that is the profile's);
 - RANSAC over those candidates (hypotheses: the prior, the last estimate and random
   triples; seeded, so a frame gives the same plane every time) keeps the admissible plane
-  (normal within `max_tilt` of the prior's, offset within `max_offset`) with the best score:
+  (normal within `max_tilt` of the prior's, offset within `max_offset`; with an IMU, of the
+  prior's or of the mounting's own plane: on a ramp the wheels stand on the ramp, the IMU's
+  level floor is the ramp's slope away from it) with the best score:
   points within the inlier distance (`inlier_distance` + 3 sigma of the depth noise) minus
   points more than that below it. The floor is the lowest large surface the robot stands
   on: a box top or a step is a plane with the floor under it, and loses;
@@ -24,7 +26,8 @@ the camera's optical frame, with the mounting's plane as the prior:
   bounds again;
 - too few inliers (fewer than `min_points`) or inliers along a line (their spread across
   either in-plane axis below `min_spread`: a strip of floor under a wall fixes only one
-  tilt) keep the last estimate: the frame falls back, counted;
+  tilt) make the frame fall back, counted: what was learnt fades towards the prior
+  (`FALLBACK_FADE` a frame), not held for good;
 - the estimate's offset from the prior is smoothed over frames (`smoothing`: the weight of
   the new frame), so a prior that moves (an IMU's tilt) carries the learnt error along;
 - ground that leaves the plane ahead within `max_slope` (a ramp) is the profile's
@@ -134,7 +137,7 @@ def _plane(normal: F64, offset: float) -> GroundPlane:
 class GroundSettings:
     """How the floor is found in each frame (see the module docstring)."""
 
-    max_tilt: float = math.radians(6.0)  # radians the floor may tilt from the mounting's
+    max_tilt: float = math.radians(10.0)  # radians the floor may tilt from the mounting's
     max_offset: float = 0.08  # metres the camera may be above or below the mounting's height
     reach: float = 3.0  # metres from the camera: farther points are not used
     inlier_distance: float = 0.02  # metres, plus 3 sigma of the depth noise at the point
@@ -238,13 +241,17 @@ def fit_ground(
     prior: GroundPlane,
     start: GroundPlane,
     settings: GroundSettings,
+    base: GroundPlane | None = None,
 ) -> tuple[GroundPlane | None, str]:
-    """The floor plane of one depth image, or None and why (see the module docstring)."""
+    """The floor plane of one depth image, or None and why (see the module docstring).
+    `base`: the mounting's own plane when `prior` is it tilted by an IMU."""
     flat, scale = _kernel_depth(depth)
     out = np.empty(7)
+    base = base or prior
     ground_kernel.fit(
         flat, scale, sample.indices, sample.rays, np.array([*prior.normal, prior.offset]),
-        np.array([*start.normal, start.offset]), settings.max_offset, settings.max_tilt,
+        np.array([*start.normal, start.offset]), np.array([*base.normal, base.offset]),
+        settings.max_offset, settings.max_tilt,
         settings.reach, settings.inlier_distance, settings.depth_noise, sample.draws,
         settings.min_points, settings.min_spread, out,
     )  # fmt: skip
@@ -395,6 +402,10 @@ def ground_profile(
     )
 
 
+# Share of the learnt correction that fades per frame in which no floor is found (half of it
+# gone in about 7 frames: half a second at 15 Hz).
+FALLBACK_FADE = 0.1
+
 # The mount check: over this many frames whose floor was found, a mean disagreement beyond
 # these between the floor and the mounting is reported.
 MOUNT_CHECK_FRAMES = 60
@@ -487,9 +498,14 @@ class GroundTracker:
         return self._estimate
 
     def update(
-        self, depth: npt.NDArray[np.generic], camera: CameraModel, prior: GroundPlane
+        self,
+        depth: npt.NDArray[np.generic],
+        camera: CameraModel,
+        prior: GroundPlane,
+        base: GroundPlane | None = None,
     ) -> GroundPlane:
-        """The smoothed floor plane of this frame (the prior until floor is seen)."""
+        """The smoothed floor plane of this frame (the prior until floor is seen); `base`:
+        the mounting's own plane when `prior` is it tilted by an IMU (`fit_ground`)."""
         if camera != self._sample_camera:
             self._sample = GroundSample.build(
                 camera, prior, self.settings.samples, self.settings.hypotheses
@@ -499,10 +515,15 @@ class GroundTracker:
         camera.check_depth(depth)
         self.counts.frames += 1
         start = prior if self._correction is None else _corrected(prior, *self._correction)
-        found, reason = fit_ground(depth, self._sample, prior, start, self.settings)
+        found, reason = fit_ground(depth, self._sample, prior, start, self.settings, base)
         if found is None:
             self.counts.fell_back += 1
             self.counts.last_reason = reason
+            if self._correction is not None:
+                # What was learnt fades towards the prior while no floor is found: a plane
+                # held from before a ramp's foot (tilted part way up it) is not kept for good.
+                keep = 1.0 - FALLBACK_FADE
+                self._correction = (keep * self._correction[0], keep * self._correction[1])
         else:
             self.counts.estimated += 1
             self.mount.add(found, prior)

@@ -132,6 +132,7 @@ def _fit(
     rays: Any,
     prior: Any,
     start: Any,
+    base: Any,
     max_offset: float,
     max_tilt: float,
     reach: float,
@@ -145,7 +146,10 @@ def _fit(
     """`ground.fit_ground`'s arithmetic: see that module's docstring. `depth` is the flat
     image (uint16 millimetres, 0 invalid, with `scale` 0.001; float32 metres, NaN invalid,
     with `scale` 1); `prior`, `start` are (normal, offset); `draws` (hypotheses x 3) numbers
-    in [0, 1) pick each hypothesis's three candidates. `out` as the module's constants say."""
+    in [0, 1) pick each hypothesis's three candidates. `base` (normal, offset) is the plane
+    the robot's wheels stand on when `prior` is tilted by an IMU (on a ramp the level floor the
+    IMU gives is the ramp's slope away from it): a plane within the bounds of either is
+    admissible. Without an IMU it is the prior. `out` as the module's constants say."""
     size = min(indices.size, rays.shape[0])
     points = np.empty((size, 3))
     tolerance = np.empty(size)
@@ -169,8 +173,11 @@ def _fit(
         spread = 3.0 * noise * z * z * abs(slope)
         allowed = inlier_distance + spread
         height = slope * z + prior[3]
-        if abs(height) > max_offset + distance * sin_tilt + allowed:
-            continue
+        bound = max_offset + distance * sin_tilt + allowed
+        if abs(height) > bound:
+            on_base = (base[0] * rays[i, 0] + base[1] * rays[i, 1] + base[2]) * z + base[3]
+            if abs(on_base) > bound:
+                continue
         points[count, 0], points[count, 1], points[count, 2] = x, y, z
         tolerance[count] = allowed
         noise_band[count] = spread
@@ -189,11 +196,11 @@ def _fit(
     nearest = np.sort(runs[:count])[int(NEAREST_SHARE * (count - 1))]
     near = np.empty(7)
     fit_within(
-        points, tolerance, noise_band, runs, count, nearest + FIT_RUN, prior, start,
+        points, tolerance, noise_band, runs, count, nearest + FIT_RUN, prior, start, base,
         max_offset, max_tilt, draws, min_points, min_spread, near,
     )  # fmt: skip
     fit_within(
-        points, tolerance, noise_band, runs, count, nearest + FIT_RUN_LONG, prior, start,
+        points, tolerance, noise_band, runs, count, nearest + FIT_RUN_LONG, prior, start, base,
         max_offset, max_tilt, draws, min_points, min_spread, out,
     )  # fmt: skip
     if out[6] != OK:
@@ -215,6 +222,7 @@ def _fit_within(
     limit: float,
     prior: Any,
     start: Any,
+    base: Any,
     max_offset: float,
     max_tilt: float,
     draws: Any,
@@ -244,13 +252,17 @@ def _fit_within(
     best = np.empty(4)
     best_score = -(2**62)
     candidate = np.empty(4)
-    for h in range(draws.shape[0] + 2):
+    for h in range(draws.shape[0] + 3):
         if h == 0:
             candidate[:] = prior
         elif h == 1:
             candidate[:] = start
+        elif h == 2:
+            if base[0] == prior[0] and base[1] == prior[1] and base[2] == prior[2]:
+                continue  # no IMU: the base is the prior
+            candidate[:] = base
         else:
-            row = draws[h - 2]
+            row = draws[h - 3]
             p0 = points[min(int(row[0] * count), count - 1)]
             p1 = points[min(int(row[1] * count), count - 1)]
             p2 = points[min(int(row[2] * count), count - 1)]
@@ -263,8 +275,7 @@ def _fit_within(
                 normal = -normal
             candidate[:3] = normal
             candidate[3] = -(normal[0] * p0[0] + normal[1] * p0[1] + normal[2] * p0[2])
-        cosine = candidate[0] * prior[0] + candidate[1] * prior[1] + candidate[2] * prior[2]
-        if cosine < cos_tilt or abs(candidate[3] - prior[3]) > max_offset:
+        if not admissible(candidate, prior, base, cos_tilt, max_offset):
             continue
         score = 0
         for i in range(0, count, SCORE_STRIDE):
@@ -291,15 +302,24 @@ def _fit_within(
             return
     out[:4] = best
     out[4] = inliers
-    cosine = best[0] * prior[0] + best[1] * prior[1] + best[2] * prior[2]
     if out[5] < min_spread:
         out[6] = ALONG_A_LINE
-    elif cosine < cos_tilt or abs(best[3] - prior[3]) > max_offset:
+    elif not admissible(best, prior, base, cos_tilt, max_offset):
         out[6] = OUT_OF_BOUNDS
     else:
         out[6] = OK
 
 
+def _admissible(plane: Any, prior: Any, base: Any, cos_tilt: float, max_offset: float) -> bool:
+    """Whether `plane` (normal, offset) is within the bounds of the prior or of `base`."""
+    for reference in (prior, base):
+        cosine = plane[0] * reference[0] + plane[1] * reference[1] + plane[2] * reference[2]
+        if cosine >= cos_tilt and abs(plane[3] - reference[3]) <= max_offset:
+            return True
+    return False
+
+
+admissible = compiled(_admissible)
 axes = compiled(_axes)
 fit_within = compiled(_fit_within)
 determinant3 = compiled(_determinant)
