@@ -90,3 +90,78 @@ def test_a_quoted_default_is_the_parameter_tables(page, name, value):
         assert math.isclose(quoted, default, abs_tol=1e-9), (page, name, value, default)
     else:
         assert quoted == default, (page, name, value, default)
+
+
+# `--option` (default VALUE)   and   `--option`, default VALUE
+QUOTED_OPTION = re.compile(r'`(--[\w-]+)`,? \(?default:? ([^),;]+)[),;]')
+# Units the pages give option values in, to the options' own (seconds, hertz).
+UNITS = {'': 1.0, 's': 1.0, 'ms': 1e-3, 'hz': 1.0}
+
+
+def option_defaults() -> dict[str, list[object]]:
+    """Every `scanfuse` command's options' defaults, by option name (typer's own record)."""
+    import typer
+
+    from scanfuse.cli import app
+
+    found: dict[str, list[object]] = {}
+    group = typer.main.get_command(app)
+    for command in group.commands.values():  # type: ignore[attr-defined]
+        for param in command.params:
+            for name in param.opts:
+                if name.startswith('--'):
+                    found.setdefault(name, []).append(param.default)
+    return found
+
+
+def quoted_option_defaults() -> list[tuple[str, str, str]]:
+    """(page, option, quoted value) of every default a page quotes for a command's option."""
+    known = option_defaults()
+    found = []
+    for page in PAGES:
+        text = ' '.join(page.read_text(encoding='utf-8').split())
+        for name, value in QUOTED_OPTION.findall(text):
+            if name in known:
+                found.append((page.name, name, value.strip()))
+    return found
+
+
+def test_the_pages_quote_option_defaults():
+    # If the pattern stopped matching, the test below would check nothing.
+    assert len(quoted_option_defaults()) >= 2
+
+
+@pytest.mark.parametrize(('page', 'name', 'value'), quoted_option_defaults())
+def test_a_quoted_option_default_is_the_commands(page, name, value):
+    defaults = [d for d in option_defaults()[name] if d is not None]
+    if not defaults:
+        pytest.skip(f'{name} has no fixed default (None: worked out at run time)')
+    number, _, unit = value.partition(' ')
+    quoted = scalar(number)
+    if isinstance(quoted, int | float) and not isinstance(quoted, bool):
+        seconds = quoted * UNITS[unit.strip().lower()]
+        assert any(math.isclose(seconds, float(d)) for d in defaults), (page, name, value)
+    else:
+        assert value.strip('`') in [str(d) for d in defaults], (page, name, value, defaults)
+
+
+def test_the_readme_names_the_nodes_default_topics():
+    text = ' '.join((REPOSITORY / 'README.md').read_text(encoding='utf-8').split())
+    sentence = text[text.index('The node subscribes') : text.index('Every value comes from')]
+    named = set(re.findall(r'`(/[\w/]+)`', sentence))
+    known = defaults()
+    topics = {
+        str(known[name])
+        for name in (
+            'scan_topic',
+            'depth_topic',
+            'camera_info_topic',
+            'odom_topic',
+            'fused_topic',
+            'instant_topic',
+            'depth_scan_topic',
+        )
+    }
+    # Every default input and output topic, and nothing else but ROS's own TF and diagnostics.
+    assert topics <= named
+    assert named - topics <= {'/tf', '/tf_static', '/diagnostics'}

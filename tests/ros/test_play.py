@@ -190,3 +190,67 @@ def test_a_ros1_bag_plays_every_message_of_the_chosen_topics(tmp_path):
     published, heard = summary(done.stdout)
     assert published == {'/scan': counts['/scan'], '/tf_static': counts['/tf_static']}
     assert heard == {}
+
+
+@pytest.mark.ros
+def test_loop_stops_cleanly_on_ctrl_c_with_its_summary_over_dds(tmp_path):
+    import signal
+    import time
+
+    from rosbags.rosbag2 import Reader
+
+    bag = write_scene_bag(tmp_path / 'scene.mcap', Scene(duration=1.0))
+    counts = recorded_counts(bag)
+    env = with_repository_on_path({**os.environ, 'ROS_DOMAIN_ID': str(domain_id())})
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PYTHONUNBUFFERED'] = '1'
+    heard, ready, stop = tmp_path / 'heard.mcap', tmp_path / 'ready', tmp_path / 'stop'
+    record = [sys.executable, '-m', 'tests.support.loopback', 'record', str(heard)]
+    listener = subprocess.Popen(
+        [
+            *record,
+            '--topic',
+            '/scan',
+            '--duration',
+            '120',
+            '--ready',
+            str(ready),
+            '--stop',
+            str(stop),
+        ],
+        env=env,
+    )
+    player = None
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert ready.exists(), 'the listener did not start'
+        player = subprocess.Popen(
+            play_command(str(bag), '--loop', '--topic', '/scan', '--topic', '/tf_static'),
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert player.stderr is not None
+        first = player.stderr.readline()  # its console (stderr): "playing BAG ..., looping"
+        assert first.startswith('playing'), first + player.stderr.read()
+        time.sleep(3.5)  # the 1 s recording, at its recorded pace: about three loops
+        player.send_signal(signal.SIGINT)  # what Ctrl-C in its terminal sends
+        out, err = player.communicate(timeout=30)
+    finally:
+        if player is not None and player.poll() is None:
+            player.kill()
+        stop.write_text('stop', encoding='utf-8')
+        listener.wait(timeout=60)
+    assert player.returncode == 0, err
+    assert 'Traceback' not in err
+    assert 'stopped' in err  # its console (stderr); the summary is on stdout
+    published, _ = summary(out)
+    # More than one loop went out before Ctrl-C, and the summary counts every message sent.
+    assert published['/scan'] > counts['/scan']
+    with Reader(heard) as reader:
+        received = sum(1 for _ in reader.messages())
+    # Over DDS a listener got more than one loop's scans, and never more than were sent.
+    assert counts['/scan'] < received <= published['/scan']

@@ -162,3 +162,40 @@ def test_a_recording_reports_when_the_robot_fell(tmp_path):
     assert (sunk - first_time) / 1e9 == pytest.approx(fell.fell_at, abs=0.25)
     stayed = record(SimConfig(world='room', **LOW), drive, 3.0, tmp_path / 'room.mcap')
     assert stayed.fell_at is None
+
+
+def _reported(output: str, quantity: str) -> str:
+    """The value `scanfuse simulate`'s summary table gives `quantity` (its row's last cell)."""
+    row = next(line for line in output.splitlines() if quantity in line)
+    return row.split(quantity, 1)[1].strip(' │|\n').split('│')[-1].strip()
+
+
+def test_cli_simulate_reports_the_fall_and_the_contacts(tmp_path, capsys):
+    from scanfuse.cli import main
+    from scanfuse.sim.robot import RobotSpec
+
+    low = ['--resolution', '256x144', '--depth-rate', '2', '--no-noise', '--path', 'straight']
+    # Straight at 0.3 m/s (`Straight`) from x = 0 at the ledge, whose floor ends at x = 2 m
+    # (`ledge_world`, the start's y is over the yard): the base's edge reaches it after
+    # (2 - r) / 0.3 s, its centre after 2 / 0.3 s; it has fallen well before 2 s later.
+    radius = RobotSpec().body_radius
+    ledge = ['simulate', '--world', 'ledge', '--duration', '9', '--out', str(tmp_path / 'l.mcap')]
+    assert main([*ledge, *low]) == 0
+    fell = _reported(capsys.readouterr().out, 'robot fell (down a drop)')
+    assert fell.startswith('yes, ')
+    assert (2.0 - radius) / 0.3 <= float(fell.split()[1]) <= 2.0 / 0.3 + 2.0
+    # The bookshelf's boards stand 2 m ahead, below the LiDAR's plane: the robot drives into
+    # them and does not fall (a floor everywhere).
+    shelf = [
+        'simulate',
+        '--world',
+        'bookshelf',
+        '--duration',
+        '9',
+        '--out',
+        str(tmp_path / 'b.mcap'),
+    ]
+    assert main([*shelf, *low]) == 0
+    output = capsys.readouterr().out
+    assert int(_reported(output, 'contact samples (robot touching an obstacle)')) > 0
+    assert _reported(output, 'robot fell (down a drop)') == 'no'

@@ -4,9 +4,13 @@
    ../shared/data/real/pcl_grabber (or $SCANFUSE_REAL_DATA) when it is there,
    else a synthetic frame of the same camera looking at a floor, a low box and a
    wall (`demo_core.png`).
-2. A quick evaluation (bookshelf, barricade, two clutter worlds; every method's
-   scan metrics, maps, closed-loop trials of LiDAR alone against the obstacle
-   scan), written as `evaluation/report.md` with figures.
+2. The quick evaluation's trials (bookshelf, barricade, two clutter worlds, the
+   ledge, the memory and turning trials: scan metrics, maps, closed-loop trials of
+   LiDAR alone against the obstacle scan) for four methods (`DEMO_METHODS`), in two
+   processes, written as `evaluation/report.md` with figures. Each method is scored
+   on its own stream over the same drives, so these rows are those of
+   `scanfuse evaluate --quick`, which adds eight methods, the closed loop of
+   `obstacle-no-memory` and the AMR trial (the README's table).
 3. A simulated drive at the bookshelf recorded as a ROS 2 bag and fused with
    `fuse_bag`: `/scan`, `/scan_fused`, `/scan_depth`, depth, TF, odometry and
    ground truth, in one MCAP file that Foxglove opens.
@@ -37,6 +41,9 @@ from scanfuse.transforms import Extrinsics
 if TYPE_CHECKING:
     import numpy.typing as npt
     from rich.console import Console
+
+    from scanfuse.evaluate.figures import SensorMark
+    from scanfuse.evaluate.runner import EvaluationSettings
 
 REAL_FRAME = Path('pcl_grabber') / 'frame_20121214T142255.814212_depth.tiff'
 # The pcl_grabber frame's intrinsics (its README): fx = fy = 525, cx = 320, cy = 240.
@@ -89,6 +96,26 @@ def summarize(scan: Scan) -> tuple[str, str, str]:
     finite = scan.ranges[np.isfinite(scan.ranges)]
     nearest = f'{finite.min():.2f} m' if finite.size else '-'
     return str(finite.size), nearest, str(int(np.isnan(scan.ranges).sum()))
+
+
+def sensor_marks(extrinsics: Extrinsics) -> tuple[SensorMark, SensorMark]:
+    """The camera's and the LiDAR's marks for a top-down plot in the base frame: each at
+    its x, y, its height in its label (the two may share x, y and differ only in height)."""
+    from scanfuse.evaluate.figures import SensorMark  # noqa: PLC0415
+
+    camera = extrinsics.base_to_camera_optical.translation
+    lidar = extrinsics.base_to_laser.translation
+    return (
+        SensorMark(
+            f'camera (row scans from here), {camera[2]:.2f} m up', (camera[0], camera[1]), 's'
+        ),
+        SensorMark(
+            f'LiDAR (obstacle scan from here), {lidar[2]:.2f} m up',
+            (lidar[0], lidar[1]),
+            '^',
+            'tab:blue',
+        ),
+    )
 
 
 def core_demo(out: Path, console: Console) -> Path:
@@ -145,8 +172,17 @@ def core_demo(out: Path, console: Console) -> Path:
         range_max=range_max,
     )
     colors = ('tab:red', 'tab:orange', 'tab:purple', 'tab:blue')
+    # Top-down in the base frame: the row scans from the camera, the obstacle scan from the
+    # LiDAR, each drawn from where its sensor sits (`sensor_marks`).
+    camera_mark, lidar_mark = sensor_marks(extrinsics)
     layers = [
-        ScanLayer(label, scan, color, size=10.0 if 'obstacle' in label else 5.0)
+        ScanLayer(
+            label,
+            scan,
+            color,
+            origin_xy=(lidar_mark if 'obstacle' in label else camera_mark).xy,
+            size=10.0 if 'obstacle' in label else 5.0,
+        )
         for (label, scan), color in zip(scans.items(), colors, strict=True)
     ]
     figure = depth_and_scans_figure(
@@ -155,6 +191,7 @@ def core_demo(out: Path, console: Console) -> Path:
         layers,
         out / 'demo_core.png',
         title='top-down (row: from the camera; obstacle: from the LiDAR)',
+        sensors=[camera_mark, lidar_mark],
     )
     table = Table(title='what each method reports')
     for column in ('method', 'finite slots', 'nearest', 'NaN slots'):
@@ -171,6 +208,11 @@ def core_demo(out: Path, console: Console) -> Path:
 
 
 DEMO_CLUTTER_WORLDS = 2
+# Four of the README's results table's methods, and the closed loop of the LiDAR alone
+# against the default: `scanfuse evaluate --quick`'s rows of these methods, exactly.
+DEMO_METHODS = ('lidar', 'row-centre', 'd2l', 'obstacle')
+DEMO_CLOSED_LOOP = ('lidar', 'obstacle')
+DEMO_JOBS = 2  # trials in parallel: `make demo` within 4 minutes on a 2-core machine
 BAG_DURATION = 8.0  # simulated seconds of the recorded drive
 RECORDING_NAME = 'bookshelf_drive.mcap'
 
@@ -214,22 +256,41 @@ def record_demo_bag(out: Path, console: Console) -> Path:
     return files[0] if files else fused
 
 
+def demo_settings() -> EvaluationSettings:
+    """`scanfuse evaluate --quick`'s trials (no AMR trial) for `DEMO_METHODS`.
+
+    Each method is scored on its own stream over the same drives, and each closed-loop
+    method drives its own trials, so the rows are those of `evaluate --quick`.
+    """
+    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
+
+    return EvaluationSettings.quick(
+        trials=DEMO_CLUTTER_WORLDS,
+        methods=DEMO_METHODS,
+        closed_loop_methods=DEMO_CLOSED_LOOP,
+        amr=(),
+    )
+
+
+def demo_jobs() -> int:
+    """`DEMO_JOBS` processes, fewer on a machine with fewer cores."""
+    return max(1, min(DEMO_JOBS, os.cpu_count() or 1))
+
+
 def run_demo(out: Path, console: Console) -> Path:
     """The whole demo into `out`; returns the evaluation report's path."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     choose_headless_gl()  # before MuJoCo is imported: rendered depth where GL works
     from scanfuse.evaluate.report import table  # noqa: PLC0415
-    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
     from scanfuse.progress import RichProgress  # noqa: PLC0415
 
     out.mkdir(parents=True, exist_ok=True)
     core_figure = core_demo(out, console)
-    settings = EvaluationSettings.quick(trials=DEMO_CLUTTER_WORLDS)
     console.rule('quick evaluation: bookshelf, barricade, clutter, ledge, memory trials')
     evaluation_dir = out / 'evaluation'
-    run_evaluation(evaluation_dir, settings, RichProgress(console))
+    run_evaluation(evaluation_dir, demo_settings(), RichProgress(console), jobs=demo_jobs())
     console.rule('a Foxglove-ready bag')
     bag = record_demo_bag(out, console)
     result_path = evaluation_dir / 'results.json'

@@ -11,6 +11,7 @@ mpl.use('Agg')  # files only: robots and CI have no screen
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle
+from matplotlib.ticker import MaxNLocator
 
 from scanfuse.camera import depth_in_metres
 from scanfuse.sim.snapshot import draw_footprints
@@ -20,6 +21,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
     from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
     from scanfuse.scan import Scan
 
@@ -46,19 +48,48 @@ def scan_points(layer: ScanLayer) -> npt.NDArray[np.float64]:
     return np.column_stack([x, y])
 
 
-def draw_scans(axes: Axes, layers: list[ScanLayer], *, title: str) -> None:
-    """Top-down view, REP-103: x forward (up the page), y left (to the left)."""
+@dataclass(frozen=True)
+class SensorMark:
+    """Where a sensor sits in a top-down plot's frame, and how it is marked and named."""
+
+    label: str
+    xy: tuple[float, float]
+    marker: str = '^'
+    color: str = 'black'
+
+
+def draw_scans(
+    axes: Axes, layers: list[ScanLayer], *, title: str, sensors: list[SensorMark] | None = None
+) -> None:
+    """Top-down view, REP-103: x forward (up the page), y left (to the left).
+
+    Each of `sensors` is drawn where it sits, with its label (two sensors at one x, y get
+    two markers that both show); without `sensors`, one mark at the origin.
+    """
     for layer in layers:
         points = scan_points(layer)
         axes.scatter(points[:, 1], points[:, 0], s=layer.size, c=layer.color, label=layer.label)
-    axes.scatter([0.0], [0.0], marker='^', s=80, c='black', label='sensor origin')
+    for sensor in sensors or [SensorMark('sensor origin', (0.0, 0.0))]:
+        hollow = sensor.marker in {'s', 'o', 'D'}
+        axes.scatter(
+            [sensor.xy[1]],
+            [sensor.xy[0]],
+            marker=sensor.marker,
+            s=160 if hollow else 70,
+            facecolors='none' if hollow else sensor.color,
+            edgecolors=sensor.color,
+            linewidths=1.5,
+            label=sensor.label,
+            zorder=3,
+        )
     if not axes.xaxis_inverted():
         axes.invert_xaxis()  # y points left, as seen from above with x up the page
     axes.set_xlabel('y (m, robot left)')
     axes.set_ylabel('x (m, forward)')
     axes.set_aspect('equal', adjustable='datalim')
     axes.grid(visible=True, alpha=0.3)
-    axes.legend(loc='upper right', fontsize=8)
+    # Under the plot: inside it, the legend would hide points.
+    axes.legend(loc='upper center', bbox_to_anchor=(0.5, -0.12), ncols=2, fontsize=8)
     axes.set_title(title)
 
 
@@ -69,8 +100,10 @@ def depth_and_scans_figure(
     path: Path,
     *,
     title: str,
+    sensors: list[SensorMark] | None = None,
 ) -> Path:
-    """Depth image with the chosen rows marked, beside a top-down plot of the scans."""
+    """Depth image with the chosen rows marked, beside a top-down plot of the scans (and of
+    `sensors`, where each sits)."""
     figure, (left, right) = plt.subplots(1, 2, figsize=(14, 6), layout='constrained')
     metres = depth_in_metres(depth)
     image = left.imshow(metres, cmap='viridis')
@@ -83,7 +116,7 @@ def depth_and_scans_figure(
     left.set_title('depth image; NaN/0 = no measurement (white)')
     if rows:
         left.legend(loc='lower right', fontsize=8)
-    draw_scans(right, layers, title=title)
+    draw_scans(right, layers, title=title, sensors=sensors)
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
@@ -201,26 +234,56 @@ def maps_figure(
 def bars_figure(
     methods: list[str], metrics: dict[str, list[float]], path: Path, *, title: str
 ) -> Path:
-    """One bar chart per metric, methods along x; `metrics` maps 'label (unit)' to values."""
+    """`bars_plot` written to `path` (PNG)."""
+    figure = bars_plot(methods, metrics, title=title)
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
+def bars_plot(methods: list[str], metrics: dict[str, list[float]], *, title: str) -> Figure:
+    """One horizontal bar chart per metric, the methods down the shared y axis, each value
+    beside its bar; `metrics` maps 'label (unit)' to values.
+
+    Horizontal bars keep every text apart however many methods there are: the names are
+    one per row on the left, the values one per row at the bars' ends, the metric under
+    its own panel.
+    """
+    rows = len(methods)
     figure, axes_row = plt.subplots(
-        1, len(metrics), figsize=(4.5 * len(metrics), 4.5), layout='constrained', squeeze=False
+        1,
+        len(metrics),
+        figsize=(3.6 * len(metrics) + 1.6, 0.32 * rows + 1.6),
+        layout='constrained',
+        sharey=True,
+        squeeze=False,
     )
     colors = [
         FUSED_COLOR if m == 'obstacle' else LIDAR_COLOR if m == 'lidar' else '0.55' for m in methods
     ]
+    # Space between the panels: one panel's last x tick label off the next one's first.
+    figure.get_layout_engine().set(wspace=0.06)  # type: ignore[union-attr, call-arg]
+    positions = np.arange(rows)
     for axes, (label, values) in zip(axes_row[0], metrics.items(), strict=True):
         shown = [0.0 if np.isnan(v) else v for v in values]
-        axes.bar(range(len(methods)), shown, color=colors)
+        axes.barh(positions, shown, color=colors, height=0.7)
+        largest = max(shown, default=0.0) or 1.0
         for index, value in enumerate(values):
             text = 'n/a' if np.isnan(value) else f'{value:.3g}'
-            axes.text(index, shown[index], text, ha='center', va='bottom', fontsize=8)
-        axes.set_xticks(range(len(methods)), methods, rotation=40, ha='right', fontsize=8)
-        axes.set_ylabel(label)
-        axes.grid(visible=True, axis='y', alpha=0.3)
+            axes.text(
+                shown[index] + 0.02 * largest, index, text, ha='left', va='center', fontsize=8
+            )
+        # Room right of the longest bar for its value; no tick label at the right edge,
+        # where it would meet the next panel's first.
+        axes.set_xlim(0.0, 1.3 * largest)
+        axes.xaxis.set_major_locator(MaxNLocator(nbins=5, prune='upper'))
+        axes.set_xlabel(label)
+        axes.grid(visible=True, axis='x', alpha=0.3)
+    first = axes_row[0][0]
+    first.set_yticks(positions, methods, fontsize=8)
+    first.invert_yaxis()  # the first method at the top, as in the tables
     figure.suptitle(title)
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return figure
 
 
 def pitch_figure(traces: dict[str, tuple[list[float], list[float]]], path: Path) -> Path:

@@ -770,7 +770,12 @@ def _maps_figure(
 
 
 def _bars_figure(evaluation: Evaluation, out: Path) -> Path:
-    result = evaluation.result([])
+    return metrics_figure(evaluation.result([]), out)
+
+
+def metrics_figure(result: EvaluationResult, out: Path) -> Path:
+    """`out/metrics.png`: each method's recall, false obstacles, goals and collisions (also
+    from a saved `results.json`)."""
     names = list(result.methods)
     metrics = {
         'recall of low obstacles in view': [result.methods[n].scan.recall for n in names],

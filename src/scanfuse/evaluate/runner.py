@@ -487,6 +487,12 @@ class Evaluation:
                 self.run_job(job)
                 self.progress.advance()
         else:
+            if isinstance(backend, LocalPool) and job_runner is None:
+                # The first job here: it compiles the kernels into numba's cache once, which
+                # every worker would otherwise compile itself, at once, on the same cores.
+                self.run_job(work[0])
+                self.progress.advance()
+                work = work[1:]
             arguments = [(self.settings, job) for job in work]
             done = run_tasks(job_runner or _run_job, arguments, backend, self.progress)
             for part in done.results:
