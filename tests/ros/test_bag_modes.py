@@ -12,24 +12,17 @@ from rosbags.highlevel import AnyReader
 
 from scanfuse import BagError, FusionConfig
 from scanfuse.cli import main
-from scanfuse.motion import PlanarPose
 from scanfuse.ros.bag import fuse_bag
 from scanfuse.ros.messages import (
-    LASER_SCAN,
-    ODOMETRY,
     POINT_CLOUD,
-    OdometrySample,
     cloud_to_cdr,
-    odometry_to_cdr,
     scan_from_msg,
-    scan_to_cdr,
 )
 from tests.support.modes import (
     D2L_CX,
     D2L_CY,
     D2L_FX,
     D2L_RANGE,
-    OMEGA,
     box_cloud,
     camera_messages,
     camera_only_params,
@@ -39,7 +32,7 @@ from tests.support.modes import (
     lidar_messages,
     lidars_only_params,
     room_truth,
-    turning_scan,
+    turning_messages,
 )
 from tests.support.reference import d2l_scan_loop
 from tests.support.render import square_room_ranges
@@ -130,14 +123,7 @@ def test_clouds_only_through_scanfuse_bag_find_the_slab_box_not_the_floor(tmp_pa
 def test_a_fixed_rate_through_scanfuse_bag_moves_a_turning_robots_scans_to_its_stamps(tmp_path):
     # The robot of tests/test_output.py: turning at 1 rad/s, a LiDAR 0.2 m ahead of the base
     # at 10 Hz, odometry at 100 Hz; outputs at 20 Hz.
-    messages = []
-    for k in range(101):
-        t_ns = 1_000_000_000 + k * 10_000_000
-        pose = PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9)
-        odometry = odometry_to_cdr(OdometrySample(t_ns, 'odom', 'base_link', pose))
-        messages.append(('/odom', ODOMETRY, t_ns, odometry))
-        if k % 10 == 0:
-            messages.append(('/scan', LASER_SCAN, t_ns, scan_to_cdr(turning_scan(t_ns))))
+    messages = turning_messages(100)
     values = {
         'use_tf': False,
         'memory': False,

@@ -10,23 +10,16 @@ import math
 import numpy as np
 import pytest
 
-from scanfuse.motion import PlanarPose
 from scanfuse.ros.messages import (
-    LASER_SCAN,
-    ODOMETRY,
     POINT_CLOUD,
-    OdometrySample,
     cloud_to_cdr,
-    odometry_to_cdr,
     scan_from_cdr,
-    scan_to_cdr,
     typestore,
 )
 from tests.ros.test_node_dds import loopback_factory  # noqa: F401 - the fixture
 from tests.support.modes import (
     D2L_RANGE,
     FRONT,
-    OMEGA,
     REAR,
     SMALL_CAMERA,
     box_cloud,
@@ -36,7 +29,7 @@ from tests.support.modes import (
     lidar_in_world,
     lidar_messages,
     room_truth,
-    turning_scan,
+    turning_messages,
 )
 from tests.support.reference import d2l_scan_loop
 from tests.support.render import square_room_ranges
@@ -143,14 +136,7 @@ def test_a_fixed_rate_over_dds_moves_a_turning_robots_scans(tmp_path, loopback_f
     # The robot of tests/test_output.py: turning on the spot at 1 rad/s, a LiDAR 0.2 m ahead
     # of the base at 10 Hz, odometry at 100 Hz; the node publishes at 20 Hz, each output the
     # freshest scan moved to its stamp: the room's walls as the LiDAR sees them then.
-    messages = []
-    for k in range(201):
-        t_ns = 1_000_000_000 + k * 10_000_000
-        pose = PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9)
-        odometry = odometry_to_cdr(OdometrySample(t_ns, 'odom', 'base_link', pose))
-        messages.append(('/odom', ODOMETRY, t_ns, odometry))
-        if k % 10 == 0:
-            messages.append(('/scan', LASER_SCAN, t_ns, scan_to_cdr(turning_scan(t_ns))))
+    messages = turning_messages(200)
     bag = write_bag(tmp_path / 'in.mcap', messages)
     params = {
         'use_tf': False,

@@ -12,12 +12,16 @@ from typing import Any
 import numpy as np
 
 from scanfuse.camera import CameraModel
+from scanfuse.motion import PlanarPose
 from scanfuse.ros.messages import (
     CAMERA_INFO,
     IMAGE,
     LASER_SCAN,
+    ODOMETRY,
+    OdometrySample,
     camera_to_cdr,
     depth_to_cdr,
+    odometry_to_cdr,
     scan_to_cdr,
 )
 from scanfuse.scan import Scan
@@ -116,6 +120,20 @@ def turning_scan(t_ns: int) -> Scan:
         frame_id='laser',
         stamp_ns=t_ns,
     )
+
+
+def turning_messages(ticks: int) -> list[tuple[str, str, int, bytes]]:
+    """The turning robot from 1 s on, `ticks` + 1 ticks of 10 ms: odometry at every tick
+    (100 Hz), a scan at every tenth (10 Hz)."""
+    messages = []
+    for k in range(ticks + 1):
+        t_ns = 1_000_000_000 + k * 10_000_000
+        pose = PlanarPose(0.0, 0.0, OMEGA * t_ns / 1e9)
+        odometry = odometry_to_cdr(OdometrySample(t_ns, 'odom', 'base_link', pose))
+        messages.append(('/odom', ODOMETRY, t_ns, odometry))
+        if k % 10 == 0:
+            messages.append(('/scan', LASER_SCAN, t_ns, scan_to_cdr(turning_scan(t_ns))))
+    return messages
 
 
 # ---------------------------------------------------------------- camera only
