@@ -249,6 +249,14 @@ class FusionConfig(BaseModel):
             '0: the floor is one plane'
         ),
     )
+    ground_trail: bool = Field(
+        default=True,
+        description=(
+            'obstacle method with an IMU and odometry: a LiDAR reading within 5 cm of the '
+            'ground the robot drove over (kept 1 m either side of its path) is the floor met '
+            'by a pitched LiDAR plane, not an obstacle: it is dropped (NaN)'
+        ),
+    )
     camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_y: float = _metres(0.0, 'camera position in the base frame, metres')
     camera_height: float = _metres(0.45, 'camera height above the floor, metres')

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar, cast
 import numpy as np
 
 from scanfuse.config import Method
+from scanfuse.convert.cloud import lidar_points
 from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.feeds import CameraFeed, DepthFrame, Sources
@@ -82,6 +83,7 @@ from scanfuse.output import (
 from scanfuse.pipeline import StageTimings
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
+from scanfuse.trail import GroundTrail
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
 if TYPE_CHECKING:
@@ -197,6 +199,7 @@ class StreamCounts:
     malformed: dict[str, int] = field(default_factory=dict)
     peak_frames: int = 0
     imu_missed: int = 0  # depth frames with no IMU sample near them, once an IMU was heard
+    lidar_on_ground: int = 0  # LiDAR readings dropped as the ground driven over (`trail`)
 
     @property
     def passed_through(self) -> int:
@@ -290,6 +293,7 @@ class FusionStream(Generic[T]):
         self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
+        self.trail: GroundTrail | None = None  # `ground_trail`: the ground driven over
         self.assembler: FragmentAssembler[T] | None = None
         # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
         self._rate_scans: deque[tuple[Scan, T]] = deque(maxlen=RATE_SCANS)
@@ -328,6 +332,10 @@ class FusionStream(Generic[T]):
             feed.ground_frame_ns = None
         self.sources: Sources = sources  # every camera, other LiDAR and cloud
         self._reassemble(config)
+        if not (config.ground_trail and config.method is Method.OBSTACLE):
+            self.trail = None
+        elif self.trail is None:
+            self.trail = GroundTrail()
         if not config.memory:
             self.memory = None
             self.drift.reset()
@@ -706,7 +714,7 @@ class FusionStream(Generic[T]):
     def _moved_to(self, scan: Scan, stamp_ns: int) -> tuple[Scan, Transform] | None:
         """`scan` (de-skewed) in the output frame and grid, moved from its stamp to
         `stamp_ns` through odometry; None when odometry does not cover the move."""
-        lidar, _ = self._deskew(scan)
+        lidar = self._off_the_trail(self._deskew(scan)[0], advance=True)
         try:
             layout = self._layout(lidar)
         except ScanfuseError as err:
@@ -779,7 +787,7 @@ class FusionStream(Generic[T]):
             lidar, deskewed, base_to_output = scan, False, pending.base_to_output
         else:
             lidar, deskewed = self._deskew(scan)
-            lidar, base_to_output = self._to_output(lidar)
+            lidar, base_to_output = self._to_output(self._off_the_trail(lidar, advance=True))
         arrived = pending.arrived_ns
         seen = [
             self._camera_contribution(feed, lidar, base_to_output, arrived, scan.frame_id)
@@ -1180,7 +1188,36 @@ class FusionStream(Generic[T]):
         return motion
 
     def deskewed(self, scan: Scan) -> Scan:
-        return self._deskew(scan)[0]
+        """`scan` de-skewed, without the readings on the ground driven over (`trail`)."""
+        return self._off_the_trail(self._deskew(scan)[0], advance=False)
+
+    def _off_the_trail(self, scan: Scan, *, advance: bool) -> Scan:
+        """`scan` (a LiDAR's, de-skewed) with its readings on the ground the robot drove
+        over dropped (NaN; `scanfuse.trail`); `advance`: the first LiDAR's scan, which moves
+        the trail on to its stamp. Unchanged without a trail, an IMU sample or a pose."""
+        trail = self.trail
+        if trail is None:
+            return scan
+        tilt = self.imu.tilt_at(scan.stamp_ns)
+        at = self.odometry.pose_at(scan.stamp_ns)
+        if tilt is None or at.pose is None:
+            return scan
+        rotation = tilt.rotation_matrix
+        if advance:
+            trail.advance(at.pose, rotation, at.segment)
+        ranges = scan.ranges
+        with np.errstate(invalid='ignore'):
+            valid = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+        if not valid.any():
+            return scan
+        points = self.base_to_laser(scan.frame_id).apply(lidar_points(scan))
+        on_ground = trail.on_ground(points, at.pose, rotation)
+        if not on_ground.any():
+            return scan
+        self.counts.lidar_on_ground += int(on_ground.sum())
+        kept = ranges.copy()
+        kept[np.flatnonzero(valid)[on_ground]] = np.nan
+        return scan.with_ranges(kept)
 
     # ------------------------------------------------------------ memory
 

@@ -143,17 +143,27 @@ def slope_depth(
     boxes: Iterable[Bounds] = (),
 ) -> np.ndarray:
     """Depth (metres, inf: none) of a floor z = 0 that from x = `start` on rises by `rise`
-    metres per metre (falls, if negative) for `length` metres, then runs level; and `boxes`.
+    metres per metre (falls, if negative) for `length` metres, then runs level; and `boxes`."""
+    end = start + length
+    top = rise * length if math.isfinite(length) else 0.0
+    pieces = [(-math.inf, start, 0.0, 0.0), (start, end, 0.0, rise), (end, math.inf, top, 0.0)]
+    return ground_depth(camera, optical_pose, pieces, boxes)
+
+
+def ground_depth(
+    camera: CameraModel,
+    optical_pose: Transform,
+    pieces: Iterable[tuple[float, float, float, float]],
+    boxes: Iterable[Bounds] = (),
+) -> np.ndarray:
+    """Depth (metres, inf: none) of ground made of `pieces` (x from, x to, height at x from,
+    slope: metres of rise per metre of x) and `boxes`.
 
     Each piece of ground is a plane met where the ray crosses it inside the piece's x range.
     """
     x_n, y_n = (np.asarray(c, dtype=np.float64) for c in camera.normalized_coordinates)
     origin = np.asarray(optical_pose.translation)
     rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=-1) @ optical_pose.rotation_matrix.T
-    end = start + length
-    top = rise * length if math.isfinite(length) else 0.0
-    # (x from, x to, height at x from, slope) of each piece
-    pieces = [(-math.inf, start, 0.0, 0.0), (start, end, 0.0, rise), (end, math.inf, top, 0.0)]
     depth = box_depth(camera, optical_pose, boxes, floor=False)
     with np.errstate(divide='ignore', invalid='ignore'):
         for x_from, x_to, z_from, slope in pieces:

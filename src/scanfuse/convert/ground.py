@@ -300,6 +300,11 @@ class GroundProfile:
     columns: npt.NDArray[np.int64]
     heights: F64  # columns x bins, metres above the plane
     bin_size: float
+    # The lowest the ground may be where no column saw it (`ground_kernel.profile`): what
+    # drops are measured below. None: `heights`. Beyond the last bin they fall on by
+    # `fall` metres per metre (the steepest floor's).
+    lows: F64 | None = None
+    fall: float = 0.0
     # Depth noise (sigma = depth_noise Z^2) times `SLOPE_NOISE_SIGMAS`: how far a rising
     # ramp's noisy readings reach above it (`ground_kernel.slope_margin`); 0: no margin.
     noise_margin: float = 0.0
@@ -329,8 +334,8 @@ class GroundProfile:
         ground_kernel.crossings(
             x_n.ravel(), y_n.ravel(), x_n.shape[1], LIFT_STRIDE,
             np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
-            self.heights, self.bin_size, far, np.array(levels, dtype=np.float64),
-            self.noise_margin, coarse,
+            self.heights, self.heights if self.lows is None else self.lows, self.fall,
+            self.bin_size, far, np.array(levels, dtype=np.float64), self.noise_margin, coarse,
         )  # fmt: skip
         fine = coarse.reshape(len(levels), *x_n.shape)
         fine = np.repeat(np.repeat(fine, LIFT_STRIDE, axis=1), LIFT_STRIDE, axis=2)
@@ -383,13 +388,14 @@ def ground_profile(
     columns, rows = _profile_grid(camera.width, camera.height)
     bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
     heights = np.empty((columns.size, bins))
+    lows = np.empty((columns.size, bins))
     evidence = np.empty(columns.size, dtype=np.int64)
     x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
     forward, left = _plane_axes(plane)
     ground_kernel.profile(
         flat, scale, camera.width, columns, rows, x_n, y_n,
         np.array([*plane.normal, plane.offset]), forward, left, math.tan(settings.max_slope),
-        settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND, heights, evidence,
+        settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND, heights, evidence, lows,
     )  # fmt: skip
     if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None
@@ -398,6 +404,8 @@ def ground_profile(
         columns=columns,
         heights=heights,
         bin_size=PROFILE_BIN,
+        lows=lows,
+        fall=math.tan(settings.max_slope),
         noise_margin=SLOPE_NOISE_SIGMAS * settings.depth_noise,
     )
 

@@ -40,6 +40,8 @@ ABOVE = 0.003
 FACE = 0.01
 # Sampled columns either side a profile bin without ground looks for one that saw it.
 FILL_COLUMNS = 2
+# Ground points a bin needs for the ground to fall across a gap behind a crest (`_profile`).
+FALL_EVIDENCE = 3
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -351,6 +353,7 @@ def _profile(
     deadband: float,
     profile: Any,
     evidence: Any,
+    low: Any,
 ) -> None:
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
@@ -370,6 +373,11 @@ def _profile(
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
     than `deadband` off the plane.
+
+    `low` is the lowest the ground may be, what a drop is measured below: the profile where
+    a column saw ground (or took a neighbour's), and beyond, where it saw none (behind a
+    crest, past the view's reach), the last ground seen falling at the steepest floor's
+    fall: a down ramp hidden behind its top is no drop, a ledge's far floor is.
     """
     bins = profile.shape[1]
     count = rows.size
@@ -436,12 +444,25 @@ def _profile(
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it.
-                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
+                gap = max(centre - at, 0.0)
+                reach = tan_slope * min(gap, bin_size)
+                # But ground that falls away behind a crest is hidden up to where a line
+                # of sight over the crest meets it again: across such a gap (no points
+                # at all) enough ground points may fall the steepest floor's fall over the
+                # whole gap (a down ramp seen from below its top), and the held bins between
+                # follow the fall. A drop's far floor lies deeper (`_candidate`).
+                fall = tan_slope * gap if found >= FALL_EVIDENCE else reach
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
                 top = ground if above >= max(2, found // 4) else ground + reach
-                bottom = ground if below >= max(2, found // 4) else ground - reach
+                bottom = ground if below >= max(2, found // 4) else ground - fall
+                held = ground
                 ground = min(max(total / found, bottom), top)
+                if ground < held - reach:
+                    first = int(at / bin_size) + 1  # the first bin held across the gap
+                    for held_bin in range(max(first, 0), b):
+                        share = ((held_bin + 0.5) * bin_size - at) / gap
+                        profile[c, held_bin] = held + share * (ground - held)
                 at = centre
                 seen[c, b] = True
                 # Off by more than the deadband (the mean of a bin's points is far steadier
@@ -457,6 +478,7 @@ def _profile(
     # ground of the nearest column within FILL_COLUMNS that saw it there, not its own held
     # level: an image column fans out across the floor, and the pixels mapped to it beside
     # a wall still see the ramp its neighbour walked up.
+    known = seen.copy()
     for b in range(bins):
         for c in range(columns_used):
             if seen[c, b]:
@@ -464,10 +486,21 @@ def _profile(
             for step in range(1, FILL_COLUMNS + 1):
                 if c - step >= 0 and seen[c - step, b]:
                     profile[c, b] = profile[c - step, b]
+                    known[c, b] = True
                     break
                 if c + step < columns_used and seen[c + step, b]:
                     profile[c, b] = profile[c + step, b]
+                    known[c, b] = True
                     break
+    for c in range(min(columns_used, low.shape[0])):
+        last, last_at = 0.0, 0.0
+        for b in range(min(bins, low.shape[1])):
+            centre = (b + 0.5) * bin_size
+            if known[c, b]:
+                last, last_at = profile[c, b], centre
+                low[c, b] = last
+            else:
+                low[c, b] = min(profile[c, b], last - tan_slope * (centre - last_at))
 
 
 def _crossings(
@@ -480,6 +513,8 @@ def _crossings(
     left: Any,
     columns: Any,
     profile: Any,
+    low: Any,
+    fall: float,
     bin_size: float,
     far: float,
     levels: Any,
@@ -489,7 +524,9 @@ def _crossings(
     """Per level L and ray the ground's height g above the plane at the point where the
     ray is L above the ground of its column's profile (the nearest sampled column; linear
     between bin centres, level beyond the ends): lifts[level, ray]. The rays are those of
-    every `stride`-th pixel of every `stride`-th row (`width` of them a row).
+    every `stride`-th pixel of every `stride`-th row (`width` of them a row). A level
+    L <= 0 (where the line of sight meets the ground: drops) takes the lowest ground, `low`,
+    which beyond the last bin falls on by `fall` metres per metre.
 
     The line of sight's height above the ground falls along it (it looks down more steeply
     than any floor slopes), so the first knot below L brackets the point. A line of sight
@@ -499,11 +536,10 @@ def _crossings(
     `margin_sigmas` (noise per metre of depth squared, sigmas included) x Z^2 x the rise per
     metre of depth there (see `slope_margin`), as a lift that measures it above that ground.
     """
-    bins = profile.shape[1]
-    last = columns.size - 1
+    bins = min(profile.shape[1], low.shape[1])
+    last = min(columns.size, profile.shape[0], low.shape[0]) - 1
     first_column = columns[0]
     step = columns[1] - columns[0] if columns.size > 1 else 1
-    g = 0.0
     for i in range(min(x_n.size, y_n.size, lifts.shape[1])):
         u = (i % width) * stride  # the image column of the i-th ray of every stride-th
         c = min(max(round((u - first_column) / step), 0), last)
@@ -516,20 +552,29 @@ def _crossings(
         count = min(levels.size, lifts.shape[0])
         pending = 0
         previous_gap = plane[3] - profile[c, 0]
+        previous_low_gap = plane[3] - low[c, 0]
         z_before = 0.0
+        g, g_low = profile[c, 0], low[c, 0]
         for b in range(bins + 1):
             # Knots at bin centres, and the far end.
             z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
             z = min(z, far)
-            g = profile[c, min(b, bins - 1)]
+            knot, before = min(b, bins - 1), max(min(b - 1, bins - 1), 0)
+            g, g_low = profile[c, knot], low[c, knot]
+            if b == bins:
+                g_low -= fall * max(z * run - (bins - 0.5) * bin_size, 0.0)
             gap = down * z + plane[3] - g  # the line of sight's height above the ground
-            g_before = profile[c, max(min(b - 1, bins - 1), 0)]
-            while pending < count and gap <= levels[pending]:
+            low_gap = down * z + plane[3] - g_low
+            while pending < count:
                 target = levels[pending]
-                above = previous_gap - target
-                below = gap - target
+                on_low = target <= 0.0
+                if not (low_gap if on_low else gap) <= target:
+                    break
+                above = (previous_low_gap if on_low else previous_gap) - target
+                below = (low_gap if on_low else gap) - target
                 share = above / (above - below) if above > below else 1.0
-                lift = g_before + share * (g - g_before)
+                g_before = low[c, before] if on_low else profile[c, before]
+                lift = g_before + share * ((g_low if on_low else g) - g_before)
                 if target > 0.0 and z > z_before:
                     depth = z_before + share * (z - z_before)
                     lift += slope_margin(
@@ -540,9 +585,11 @@ def _crossings(
             if z >= far or pending == count:
                 break
             previous_gap = gap
+            previous_low_gap = low_gap
             z_before = z
         for level in range(pending, count):
-            lifts[level, i] = g  # the ground at the walk's last knot: depth `far`
+            # The ground at the walk's last knot: depth `far`.
+            lifts[level, i] = g_low if levels[level] <= 0.0 else g
 
 
 def _slope_margin(sigma: float, rise: float, down: float) -> float:

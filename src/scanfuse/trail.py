@@ -1,0 +1,164 @@
+"""The ground the robot drove over: a LiDAR reading that lies on it is the floor.
+
+A 2D LiDAR's plane is parallel to the base. When the body pitches (over a ramp's foot or
+crest, braking on a sprung chassis), or stands on ground that is not level with the ground
+around it (half-way up a ramp the floor behind it lies lower), the plane meets the floor
+a metre or two away, and the LiDAR reports the floor as a wall: behind and beside the
+robot, where no camera looks.
+
+With an IMU (the base's pitch and roll) and odometry the stream keeps the ground under the
+path the robot drove, in the odometry frame: the base's height is summed along the path
+(each step climbs its length along the base's tilted axes, `GroundTrail.advance`), and
+every cell within `half_width` of the base takes the height of the plane the wheels stand
+on there (the nearest pass's: the ground beside the path is taken to go on as under it,
+as a corridor's or a ramp's does). A LiDAR reading whose point, tilted the same way, lies
+within `tolerance` of a known cell's ground is the floor (`on_ground`): the stream drops
+it (NaN, no reading), and what a camera or the memory sees there stands.
+
+A reading is dropped only where the robot has been: an obstacle it drove past stands
+above the ground by more than `tolerance` wherever the LiDAR's plane meets it (the plane
+is `lidar_height` above the base), except within `tolerance` of its foot.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from scanfuse.motion import PlanarPose
+
+    F64 = npt.NDArray[np.float64]
+
+# A step longer than this between two scans is odometry jumping, not driving: start anew.
+MAX_STEP = 0.5  # metres
+_NO_CELL = np.iinfo(np.int64).min
+
+
+@dataclass(frozen=True)
+class TrailSettings:
+    """`half_width`: metres either side of the base's origin whose ground the trail keeps;
+    `cell`: the grid's cell, metres; `length`: metres of path after which a cell is
+    forgotten (the height summed along the path drifts); `tolerance`: metres above or
+    below a cell's ground a reading may lie and still be the floor."""
+
+    half_width: float = 1.0
+    cell: float = 0.1
+    length: float = 8.0
+    tolerance: float = 0.05
+
+    @property
+    def side(self) -> int:
+        """Cells along each side of the rolling grid: every cell the kept path can reach."""
+        return math.ceil(2.0 * (self.length + self.half_width) / self.cell) + 1
+
+
+class GroundTrail:
+    """The ground under the path driven, on a rolling grid in the odometry frame."""
+
+    def __init__(self, settings: TrailSettings | None = None) -> None:
+        self.settings = settings or TrailSettings()
+        side = self.settings.side
+        self._keys = np.full((side, side, 2), _NO_CELL, dtype=np.int64)
+        self._ground = np.zeros((side, side))
+        self._reach = np.zeros((side, side))  # the writer's distance from the cell
+        self._written = np.zeros((side, side))  # the path length when it was written
+        self._pose: PlanarPose | None = None
+        self._segment: int | None = None
+        self._height = 0.0  # the base's height above where the trail began
+        self._travelled = 0.0
+        reach = math.ceil(self.settings.half_width / self.settings.cell)
+        offsets = np.arange(-reach, reach + 1)
+        self._offsets = np.stack(np.meshgrid(offsets, offsets, indexing='ij'), -1).reshape(-1, 2)
+
+    def __len__(self) -> int:
+        return int((self._keys[..., 0] != _NO_CELL).sum())
+
+    def clear(self) -> None:
+        self._keys[...] = _NO_CELL
+        self._pose = None
+        self._segment = None
+        self._height = 0.0
+        self._travelled = 0.0
+
+    def advance(self, pose: PlanarPose, tilt: F64, segment: int) -> None:
+        """The base at `pose` (odometry), tilted by `tilt` (3x3, base to a level frame of
+        the same heading: the IMU's), in odometry segment `segment` (a new one: odometry
+        was reset, the trail starts anew); its ground is written around it."""
+        last = self._pose
+        if last is not None and segment == self._segment:
+            step = math.hypot(pose.x - last.x, pose.y - last.y)
+            if step > MAX_STEP:
+                self.clear()
+            else:
+                self._height += self._climb(pose, tilt, last)
+                self._travelled += step
+        else:
+            self.clear()
+        self._pose, self._segment = pose, segment
+        self._write(pose, tilt)
+
+    def on_ground(self, points: F64, pose: PlanarPose, tilt: F64) -> npt.NDArray[np.bool_]:
+        """Which of `points` (N x 3, base frame, of the base at `pose` tilted by `tilt`)
+        lie within `tolerance` of the ground of a cell the trail knows."""
+        settings = self.settings
+        if self._pose is None or not points.size:
+            return np.zeros(len(points), dtype=np.bool_)
+        level = points @ tilt.T
+        cosine, sine = math.cos(pose.yaw), math.sin(pose.yaw)
+        x = pose.x + cosine * level[:, 0] - sine * level[:, 1]
+        y = pose.y + sine * level[:, 0] + cosine * level[:, 1]
+        z = self._height + self._climb(pose, tilt, self._pose) + level[:, 2]
+        ix = np.floor(x / settings.cell).astype(np.int64)
+        iy = np.floor(y / settings.cell).astype(np.int64)
+        side = settings.side
+        row, column = ix % side, iy % side
+        known = (self._keys[row, column, 0] == ix) & (self._keys[row, column, 1] == iy)
+        known &= self._written[row, column] >= self._travelled - settings.length
+        found: npt.NDArray[np.bool_] = known & (
+            np.abs(z - self._ground[row, column]) <= settings.tolerance
+        )
+        return found
+
+    @staticmethod
+    def _climb(pose: PlanarPose, tilt: F64, last: PlanarPose) -> float:
+        """The height gained from `last` to `pose`: the step along the base's axes, each
+        rising as `tilt` says."""
+        dx, dy = pose.x - last.x, pose.y - last.y
+        cosine, sine = math.cos(pose.yaw), math.sin(pose.yaw)
+        forward, sideways = cosine * dx + sine * dy, -sine * dx + cosine * dy
+        return float(forward * tilt[2, 0] + sideways * tilt[2, 1])
+
+    def _write(self, pose: PlanarPose, tilt: F64) -> None:
+        """Every cell within `half_width` of the base: the height of the plane the base
+        stands on there, unless a pass nearer to the cell wrote it."""
+        settings = self.settings
+        cell = settings.cell
+        ix = np.floor(pose.x / cell).astype(np.int64) + self._offsets[:, 0]
+        iy = np.floor(pose.y / cell).astype(np.int64) + self._offsets[:, 1]
+        dx, dy = (ix + 0.5) * cell - pose.x, (iy + 0.5) * cell - pose.y
+        reach = np.hypot(dx, dy)
+        near = reach <= settings.half_width
+        ix, iy, dx, dy, reach = ix[near], iy[near], dx[near], dy[near], reach[near]
+        # The base's plane: its normal (the base's up axis) in the level frame.
+        normal = tilt[:, 2]
+        cosine, sine = math.cos(pose.yaw), math.sin(pose.yaw)
+        forward, sideways = cosine * dx + sine * dy, -sine * dx + cosine * dy
+        ground = self._height - (normal[0] * forward + normal[1] * sideways) / normal[2]
+        side = settings.side
+        row, column = ix % side, iy % side
+        same = (self._keys[row, column, 0] == ix) & (self._keys[row, column, 1] == iy)
+        fresh = self._written[row, column] >= self._travelled - settings.length
+        nearer = reach <= self._reach[row, column] + 0.5 * cell
+        take = ~(same & fresh) | nearer
+        row, column = row[take], column[take]
+        self._keys[row, column, 0] = ix[take]
+        self._keys[row, column, 1] = iy[take]
+        self._ground[row, column] = ground[take]
+        self._reach[row, column] = reach[take]
+        self._written[row, column] = self._travelled

@@ -1,0 +1,176 @@
+"""The ground driven over (issue 25): a pitched LiDAR plane's floor returns are dropped.
+
+A robot drives 4 m over a level floor and then up a 1:8 ramp. Half-way up, its body pitched
+nose-up by the ramp's 7.1 deg, the LiDAR's plane (0.30 m above the base) runs down behind
+it and meets the level floor it came from. Where it meets it is worked out here from the
+geometry alone; a wall's reading in the same direction, nearer, stands well above it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.motion import PlanarPose
+from scanfuse.scan import Scan
+from scanfuse.stream import FusionStream
+from scanfuse.trail import MAX_STEP, GroundTrail, TrailSettings
+from scanfuse.transforms import Transform
+from tests.support.ground_scene import NS, config
+
+GRADE = 1.0 / 8.0
+SLOPE = math.atan(GRADE)
+FOOT = 1.0  # x where the ramp starts
+START = -3.0
+LIDAR_HEIGHT = 0.30
+STEP = 0.035  # metres a scan: 0.35 m/s at 10 Hz
+READINGS = 360
+HALF_WIDTH = TrailSettings().half_width
+
+
+def pitch_at(x: float) -> float:
+    """The body's pitch (radians, nose-up positive) at x: the ramp's slope on it."""
+    return SLOPE if x >= FOOT else 0.0
+
+
+def tilt(pitch_up: float) -> np.ndarray:
+    """Base to level: nose-up is a negative ROS pitch."""
+    return Transform.from_rpy(0.0, -pitch_up, 0.0).rotation_matrix
+
+
+def height_at(x: float) -> float:
+    return max(x - FOOT, 0.0) * GRADE
+
+
+def floor_hit(x: float, angle: float) -> float:
+    """The range at which the ray at `angle` (base frame) of a LiDAR LIDAR_HEIGHT above a
+    base at x, pitched nose-up by its ramp, meets the level floor z = 0 (inf: never)."""
+    pitch = pitch_at(x)
+    origin_z = height_at(x) + LIDAR_HEIGHT * math.cos(pitch)
+    fall = -math.cos(angle) * math.sin(pitch)  # metres down per metre of range
+    return origin_z / fall if fall > 0.0 else math.inf
+
+
+def path() -> list[float]:
+    return list(np.arange(START, FOOT + 1.0, STEP))
+
+
+def driven_trail() -> GroundTrail:
+    trail = GroundTrail()
+    for x in path():
+        trail.advance(PlanarPose(float(x), 0.0, 0.0), tilt(pitch_at(x)), 0)
+    return trail
+
+
+def lidar_point(x: float, angle: float, reach: float) -> np.ndarray:
+    """The reading's point in the base frame (the LiDAR's frame lies LIDAR_HEIGHT above)."""
+    return np.array([[reach * math.cos(angle), reach * math.sin(angle), LIDAR_HEIGHT]])
+
+
+def test_the_floor_behind_a_robot_on_a_ramp_is_ground_and_a_wall_there_is_not():
+    trail = driven_trail()
+    x = path()[-1]
+    pose, rotation = PlanarPose(float(x), 0.0, 0.0), tilt(pitch_at(x))
+    for degrees in (180.0, 175.0, -176.0):  # within 0.3 m of the path
+        angle = math.radians(degrees)
+        reach = floor_hit(x, angle)
+        assert 2.0 < reach < 4.0  # behind the ramp's foot, on the floor driven over
+        assert trail.on_ground(lidar_point(x, angle, reach), pose, rotation).all()
+        # A wall at 60 % of that range: the plane meets it 0.17 m or more above the floor.
+        wall = lidar_point(x, angle, 0.6 * reach)
+        assert not trail.on_ground(wall, pose, rotation).any()
+
+
+def test_ground_beside_the_path_counts_only_within_the_half_width():
+    trail = driven_trail()
+    x = path()[-1]
+    pose, rotation = PlanarPose(float(x), 0.0, 0.0), tilt(pitch_at(x))
+    # The level floor 3 m behind, within and beyond the half width to the side.
+    for side, expected in ((0.8 * HALF_WIDTH, True), (1.4 * HALF_WIDTH, False)):
+        behind = np.array([[-3.0, side, 0.0]])  # level-frame offset from the base ...
+        # ... in the base frame, down to the floor: z = -(height of the base).
+        level = np.array([[-3.0, side, -height_at(x)]])
+        base = level @ rotation  # level = R base, so base = R^T level
+        assert trail.on_ground(base, pose, rotation)[0] == expected, behind
+
+
+def test_an_odometry_jump_or_reset_forgets_the_trail():
+    trail = driven_trail()
+    x = path()[-1]
+    point = lidar_point(x, math.pi, floor_hit(x, math.pi))
+    rotation = tilt(pitch_at(x))
+    jumped = PlanarPose(x + 2.0 * MAX_STEP, 0.0, 0.0)
+    trail.advance(jumped, rotation, 0)
+    assert not trail.on_ground(point, jumped, rotation).any()
+    trail = driven_trail()
+    pose = PlanarPose(float(x), 0.0, 0.0)
+    trail.advance(pose, rotation, 1)  # a new odometry segment
+    assert not trail.on_ground(point, pose, rotation).any()
+
+
+def scan_at(x: float, stamp_ns: int) -> Scan:
+    """The LiDAR's scan at x: a wall 3 m ahead, the floor behind where the plane meets it."""
+    increment = 2.0 * math.pi / READINGS
+    angles = -math.pi + increment * np.arange(READINGS)
+    ranges = np.array([floor_hit(x, float(a)) for a in angles])
+    ahead = np.cos(angles) > 0.5
+    ranges[ahead] = 3.0 / np.cos(angles[ahead])
+    ranges[ranges > 9.0] = np.inf
+    return Scan(
+        angle_min=-math.pi,
+        angle_max=math.pi - increment,
+        angle_increment=increment,
+        range_min=0.05,
+        range_max=10.0,
+        ranges=ranges.astype(np.float32),
+        frame_id='laser',
+        stamp_ns=stamp_ns,
+    )
+
+
+def drive(*, imu: bool = True, **changes: object) -> tuple[Scan, Scan, FusionStream[int]]:
+    """A LiDAR-only stream fed the drive at 10 Hz (odometry, IMU); the last scan as sent
+    and as published."""
+    stream: FusionStream[int] = FusionStream(
+        config(lidar_height=LIDAR_HEIGHT, deskew=False, **changes)
+    )
+    out = sent = None
+    for index, x in enumerate(path()):
+        stamp = (index + 1) * NS // 10
+        stream.add_odometry(stamp, PlanarPose(float(x), 0.0, 0.0))
+        if imu:
+            pitch = Transform.from_rpy(0.0, -pitch_at(x), 0.0).rotation
+            stream.add_imu(stamp, pitch, 'base_link')
+        sent = scan_at(float(x), stamp)
+        (out,) = stream.add_scan(sent, index, stamp + 1)
+    assert out is not None and sent is not None
+    published = out.fused if out.fused is not None else out.lidar
+    return sent, published, stream
+
+
+def test_the_stream_drops_the_floor_behind_and_keeps_the_wall_ahead():
+    sent, published, stream = drive()
+    angles = sent.angles()
+    floor = np.isfinite(sent.ranges) & (np.cos(angles) < 0.0)
+    aside = np.abs(sent.ranges * np.sin(angles))  # metres from the path driven
+    on_path = floor & (aside < 0.9 * HALF_WIDTH)
+    off_path = floor & (aside > 1.1 * HALF_WIDTH)
+    wall = np.cos(angles) > 0.5
+    assert on_path.sum() > 10
+    assert off_path.sum() > 10
+    assert np.isnan(published.ranges[on_path]).all()
+    # Floor farther aside than the trail's half width is not known: it stays.
+    np.testing.assert_array_equal(published.ranges[off_path], sent.ranges[off_path])
+    np.testing.assert_array_equal(published.ranges[wall], sent.ranges[wall])
+    assert stream.counts.lidar_on_ground >= on_path.sum()
+
+
+@pytest.mark.parametrize(
+    ('changes', 'imu'), [({'ground_trail': False}, True), ({}, False)], ids=['off', 'no IMU']
+)
+def test_without_the_trail_or_an_imu_the_floor_behind_stays(changes, imu):
+    sent, published, stream = drive(imu=imu, **changes)
+    np.testing.assert_array_equal(published.ranges, sent.ranges)
+    assert stream.counts.lidar_on_ground == 0
