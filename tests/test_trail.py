@@ -145,7 +145,8 @@ def drive(*, imu: bool = True, **changes: object) -> tuple[Scan, Scan, FusionStr
             stream.add_imu(stamp, pitch, 'base_link')
         sent = scan_at(float(x), stamp)
         (out,) = stream.add_scan(sent, index, stamp + 1)
-    assert out is not None and sent is not None
+    assert out is not None
+    assert sent is not None
     published = out.fused if out.fused is not None else out.lidar
     return sent, published, stream
 

@@ -30,7 +30,7 @@ from tests.support.ground_scene import (
     optical_pose,
     score,
 )
-from tests.support.render import box_depth, millimetres, slope_depth
+from tests.support.render import box_depth, ground_depth, millimetres, slope_depth
 
 if TYPE_CHECKING:
     from scanfuse.scan import Scan
@@ -467,3 +467,41 @@ def test_the_fit_without_numba_gives_the_compiled_fits_plane():
     compiled, plain = results
     assert compiled[6] == ground_kernel.OK
     np.testing.assert_allclose(plain, compiled, rtol=1e-9, atol=1e-12)
+
+
+def platform_depth(start: float, platform: float, *, ledge: float = 0.0) -> np.ndarray:
+    """A 1:8 ramp from `start` up 0.15 m to a platform `platform` long, and past its end an
+    equal ramp down to the floor; or with `ledge`, ground that many metres lower."""
+    run = 0.15 * 8.0
+    end = start + run + platform
+    pieces = [
+        (-math.inf, start, 0.0, 0.0),
+        (start, start + run, 0.0, 1.0 / 8.0),
+        (start + run, end, 0.15, 0.0),
+    ]
+    if ledge:
+        pieces.append((end, math.inf, 0.15 - ledge, 0.0))
+    else:
+        pieces += [(end, end + run, 0.15, -1.0 / 8.0), (end + run, math.inf, 0.0, 0.0)]
+    return millimetres(ground_depth(CAMERA, optical_pose(), pieces))
+
+
+DOWN_RAMPS = {'top 2.3 m ahead': (0.8, 0.3), 'top 2.6 m ahead': (0.8, 0.6), 'short': (1.0, 0.1)}
+
+
+@pytest.mark.parametrize(('start', 'platform'), DOWN_RAMPS.values(), ids=DOWN_RAMPS.keys())
+def test_a_down_ramp_hidden_behind_its_top_is_no_drop(start, platform):
+    # From 0.25 m above the platform a line of sight over its end falls less steeply than
+    # 1:8: the ramp down is hidden, and the floor is seen again 0.15 m lower, far beyond.
+    scan, _ = depth_scans([platform_depth(start, platform)] * 3)
+    in_view = ~np.isnan(scan.ranges)
+    false = in_view & (scan.ranges < scan.range_max)
+    assert false.sum() <= 0.005 * in_view.sum()
+
+
+def test_a_ledge_past_a_platform_is_a_drop_at_its_edge():
+    # The ramp's top ends 1.8 m ahead in a ledge 0.4 m deep: a line of sight over the edge
+    # falls faster than 1:8, and meets ground 0.4 m lower: deeper than any ramp's fall.
+    scan, _ = depth_scans([platform_depth(0.6, 0.0, ledge=0.4)] * 3)
+    ahead = scan.ranges[READINGS // 2 - 2 : READINGS // 2 + 3]
+    assert np.all(np.abs(ahead - 1.8) <= 0.08)

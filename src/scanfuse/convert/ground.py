@@ -309,18 +309,21 @@ class GroundProfile:
     # ramp's noisy readings reach above it (`ground_kernel.slope_margin`); 0: no margin.
     noise_margin: float = 0.0
     # `ground_under`'s answers: the projector and the memory ask the same of one frame.
-    _lifts: dict[tuple[CameraModel, float, tuple[float, ...]], F64] = field(
+    _lifts: dict[tuple[CameraModel, float, tuple[float, ...], int], F64] = field(
         default_factory=dict, repr=False
     )
 
     def axes(self) -> tuple[F64, F64]:
         return _plane_axes(self.plane)
 
-    def ground_under(self, camera: CameraModel, far: float, levels: tuple[float, ...]) -> F64:
+    def ground_under(
+        self, camera: CameraModel, far: float, levels: tuple[float, ...], lowest: int = 0
+    ) -> F64:
         """Per level L and pixel (flattened) the ground's height above the plane under the
         point of the pixel's line of sight that is L above the ground (L = 0: where it meets
-        the ground), or under its point at depth `far` (levels x pixels; kept, not a copy)."""
-        key = (camera, far, levels)
+        the ground), or under its point at depth `far` (levels x pixels; kept, not a copy).
+        The last `lowest` levels are measured above the lowest ground (`lows`: drops)."""
+        key = (camera, far, levels, lowest)
         if key in self._lifts:
             return self._lifts[key]
         # On every LIFT_STRIDE-th pixel and row, then each to its block: the ground under a
@@ -335,7 +338,8 @@ class GroundProfile:
             x_n.ravel(), y_n.ravel(), x_n.shape[1], LIFT_STRIDE,
             np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
             self.heights, self.heights if self.lows is None else self.lows, self.fall,
-            self.bin_size, far, np.array(levels, dtype=np.float64), self.noise_margin, coarse,
+            self.bin_size, far, np.array(levels, dtype=np.float64), len(levels) - lowest,
+            self.noise_margin, coarse,
         )  # fmt: skip
         fine = coarse.reshape(len(levels), *x_n.shape)
         fine = np.repeat(np.repeat(fine, LIFT_STRIDE, axis=1), LIFT_STRIDE, axis=2)

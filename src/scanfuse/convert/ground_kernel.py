@@ -40,8 +40,6 @@ ABOVE = 0.003
 FACE = 0.01
 # Sampled columns either side a profile bin without ground looks for one that saw it.
 FILL_COLUMNS = 2
-# Ground points a bin needs for the ground to fall across a gap behind a crest (`_profile`).
-FALL_EVIDENCE = 3
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -444,25 +442,12 @@ def _profile(
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it.
-                gap = max(centre - at, 0.0)
-                reach = tan_slope * min(gap, bin_size)
-                # But ground that falls away behind a crest is hidden up to where a line
-                # of sight over the crest meets it again: across such a gap (no points
-                # at all) enough ground points may fall the steepest floor's fall over the
-                # whole gap (a down ramp seen from below its top), and the held bins between
-                # follow the fall. A drop's far floor lies deeper (`_candidate`).
-                fall = tan_slope * gap if found >= FALL_EVIDENCE else reach
+                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
                 # An obstacle's face (many points above any floor's rise) or a drop's (many
                 # below) stands in this bin: the ground does not rise or fall into it.
                 top = ground if above >= max(2, found // 4) else ground + reach
-                bottom = ground if below >= max(2, found // 4) else ground - fall
-                held = ground
+                bottom = ground if below >= max(2, found // 4) else ground - reach
                 ground = min(max(total / found, bottom), top)
-                if ground < held - reach:
-                    first = int(at / bin_size) + 1  # the first bin held across the gap
-                    for held_bin in range(max(first, 0), b):
-                        share = ((held_bin + 0.5) * bin_size - at) / gap
-                        profile[c, held_bin] = held + share * (ground - held)
                 at = centre
                 seen[c, b] = True
                 # Off by more than the deadband (the mean of a bin's points is far steadier
@@ -518,15 +503,16 @@ def _crossings(
     bin_size: float,
     far: float,
     levels: Any,
+    low_from: int,
     margin_sigmas: float,
     lifts: Any,
 ) -> None:
     """Per level L and ray the ground's height g above the plane at the point where the
     ray is L above the ground of its column's profile (the nearest sampled column; linear
     between bin centres, level beyond the ends): lifts[level, ray]. The rays are those of
-    every `stride`-th pixel of every `stride`-th row (`width` of them a row). A level
-    L <= 0 (where the line of sight meets the ground: drops) takes the lowest ground, `low`,
-    which beyond the last bin falls on by `fall` metres per metre.
+    every `stride`-th pixel of every `stride`-th row (`width` of them a row). The levels
+    from index `low_from` on are measured above the lowest ground, `low` (drops: see
+    `_profile`), which beyond the last bin falls on by `fall` metres per metre.
 
     The line of sight's height above the ground falls along it (it looks down more steeply
     than any floor slopes), so the first knot below L brackets the point. A line of sight
@@ -567,7 +553,7 @@ def _crossings(
             low_gap = down * z + plane[3] - g_low
             while pending < count:
                 target = levels[pending]
-                on_low = target <= 0.0
+                on_low = pending >= low_from
                 if not (low_gap if on_low else gap) <= target:
                     break
                 above = (previous_low_gap if on_low else previous_gap) - target
@@ -589,7 +575,7 @@ def _crossings(
             z_before = z
         for level in range(pending, count):
             # The ground at the walk's last knot: depth `far`.
-            lifts[level, i] = g_low if levels[level] <= 0.0 else g
+            lifts[level, i] = g_low if level >= low_from else g
 
 
 def _slope_margin(sigma: float, rise: float, down: float) -> float:

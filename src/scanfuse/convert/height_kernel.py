@@ -56,8 +56,9 @@ def _tables(
     metres; lo, hi, drop_lo in uint16 millimetres and the floor in float32 millimetres.
 
     `limits` = (min_obstacle_height, max_obstacle_height, range_min, range_max); `drops` =
-    (on, min_depth, min_width, noise); `lifts` (3 x pixels, or 0 columns: none) the ground's
-    height above the plane at the slab's top, its bottom and the floor crossing.
+    (on, min_depth, min_width, noise); `lifts` (4 x pixels, or 0 columns: none) the ground's
+    height above the plane at the slab's top, its bottom, the floor crossing and the lowest
+    ground's crossing (a drop lies beyond it).
     """
     min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
     with_lifts = lifts.shape[1] > 0
@@ -74,6 +75,7 @@ def _tables(
         b_top = offset - lifts[0, i] if with_lifts else offset
         b_bottom = offset - lifts[1, i] if with_lifts else offset
         b_floor = offset - lifts[2, i] if with_lifts else offset
+        b_lowest = offset - lifts[3, i] if with_lifts else offset
         if not math.isfinite(a_z):
             lo, hi = math.inf, -math.inf
         elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
@@ -88,13 +90,17 @@ def _tables(
         drop_lo, drop_hi, floor = math.inf, -math.inf, math.nan
         if with_drops:
             crossing = -b_floor / a_z if a_z != 0.0 else math.nan
+            beneath = -b_lowest / a_z if a_z != 0.0 else math.nan
             if a_z < -_LEVEL_RAY and range_min <= crossing <= range_max:
                 margin = drops[1] / -a_z
                 if drops[2] > 0.0:
                     margin = max(margin, drops[2] / horizontal[i])
                 margin = max(margin, DROP_NOISE_SIGMAS * drops[3] * crossing * crossing)
-                if math.isfinite(margin):
-                    drop_lo, drop_hi, floor = crossing + margin, math.inf, crossing
+                # Where the line of sight meets the lowest ground beyond the range, the
+                # ground may be there: no drop within it.
+                if math.isfinite(margin) and beneath <= range_max:
+                    drop_lo = max(beneath, crossing) + margin
+                    drop_hi, floor = math.inf, crossing
         metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
         lo_mm, hi_mm = millimetres(lo, hi)
         millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm

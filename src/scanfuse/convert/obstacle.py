@@ -372,22 +372,27 @@ def _drop_interval(
     limits: DropLimits,
     range_min: float,
     range_max: float,
+    lowest: F64 | None = None,
 ) -> tuple[F64, F64, F64]:
     """Per pixel the depths [lo, hi] that are drop-offs and the floor crossing depth Z0.
 
     `horizontal` is the horizontal distance the pixel's point moves per unit of Z.
     lo > hi (and Z0 NaN) where the pixel cannot see a drop: its ray does not go down, or
-    meets the floor outside the range limits.
+    meets the floor outside the range limits. `lowest`: b_z of the lowest the ground may be
+    (a ramp's profile, `GroundProfile.lows`): a drop lies beyond where the ray meets it.
     """
     with np.errstate(divide='ignore', invalid='ignore'):
         floor = -b_z / a_z
+        beneath = floor if lowest is None else -lowest / a_z
         possible = (a_z < -_LEVEL_RAY) & (floor >= range_min) & (floor <= range_max)
         below = limits.min_depth / -a_z
         beyond = np.where(limits.min_width > 0.0, limits.min_width / horizontal, 0.0)
     noise = DROP_NOISE_SIGMAS * limits.noise * floor * floor
     margin = np.maximum(np.maximum(below, beyond), noise)
-    possible &= np.isfinite(margin)
-    lo = np.where(possible, floor + margin, np.inf)
+    # Where the line of sight meets the lowest ground beyond the range, the ground may be
+    # there: no drop within it.
+    possible &= np.isfinite(margin) & (beneath <= range_max)
+    lo = np.where(possible, np.maximum(beneath, floor) + margin, np.inf)
     hi = np.where(possible, np.inf, -np.inf)
     return lo, hi, np.where(possible, floor, np.nan)
 
@@ -773,10 +778,11 @@ class ObstacleProjector:
     ) -> tuple[F64, F64, F64, F64, F64]:
         """Per pixel of `part` the slab interval [lo, hi], the drop interval [drop_lo,
         drop_hi] and the floor crossing depth, for heights above `ground`; with `lifts`
-        (3 x pixels, `GroundProfile.ground_under` at max_obstacle_height,
-        min_obstacle_height and 0) above the
-        ground under the points where the line of sight is at the slab's top, at its bottom
-        and meets the ground (a ramp's height there)."""
+        (4 x pixels, `GroundProfile.ground_under` at max_obstacle_height,
+        min_obstacle_height, 0 and 0 on the lowest ground) above the ground under the
+        points where the line of sight is at the slab's top, at its bottom, meets the ground
+        (a ramp's height there) and meets the lowest ground the ground may be (a drop lies
+        beyond that)."""
         normal = ground.normal
         a_z = normal[0] * x_n + normal[1] * y_n + normal[2]
         b_z: float | F64 = ground.offset
@@ -802,8 +808,9 @@ class ObstacleProjector:
             return lo, hi, drop_lo, -drop_lo, np.full(a_z.shape, np.nan)
         horizontal = self._drop_horizontal[part].astype(np.float64)
         drop_lo, drop_hi, floor = _drop_interval(
-            a_z, b_z, horizontal, self.drops, self.range_min, self.range_max
-        )
+            a_z, b_z, horizontal, self.drops, self.range_min, self.range_max,
+            lowest=None if lifts is None else ground.offset - lifts[3],
+        )  # fmt: skip
         return lo, hi, drop_lo, drop_hi, floor
 
     def _store_heights(
@@ -853,7 +860,7 @@ class ObstacleProjector:
         drops = self.drops
         height_kernel.tables(
             x_table, y_table, self._drop_horizontal, np.array(ground.normal), ground.offset,
-            np.empty((3, 0)) if lifts is None else lifts,
+            np.empty((4, 0)) if lifts is None else lifts,
             np.array([self.min_obstacle_height, self.max_obstacle_height, self.range_min,
                       self.range_max]),
             np.zeros(4) if drops is None else np.array(
@@ -886,9 +893,13 @@ class ObstacleProjector:
             and ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE
         ):
             return False
-        levels = (self.max_obstacle_height, self.min_obstacle_height, 0.0)
+        # The slab's top and bottom, where the line of sight meets the ground, and where it
+        # meets the lowest ground (a drop lies below that: `GroundProfile.lows`).
+        levels = (self.max_obstacle_height, self.min_obstacle_height, 0.0, 0.0)
         lifts = (
-            None if profile is None else profile.ground_under(self.camera, self.range_max, levels)
+            None
+            if profile is None
+            else profile.ground_under(self.camera, self.range_max, levels, lowest=1)
         )
         if self._kernel is not None:
             self._compiled_heights(ground, lifts)

@@ -506,6 +506,9 @@ class LiveFusion:
             'motion compensated': str(counts.compensated),
             'odometry from': self.stream.odometry_source or 'none yet',
             'de-skewed': str(counts.deskewed),
+            'LiDAR readings on the ground driven over': (
+                str(counts.lidar_on_ground) if self.stream.trail is not None else 'off'
+            ),
             'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
             'memory dropped': str(counts.memory_dropped),
             'memory scan matches (accepted / refused)': (
