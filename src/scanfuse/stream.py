@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar, cast
 import numpy as np
 
 from scanfuse.config import Method
-from scanfuse.convert.cloud import lidar_points
+from scanfuse.convert.cloud import lidar_points, lidar_readings
 from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError, ScanfuseError, TransformError
 from scanfuse.feeds import CameraFeed, DepthFrame, Sources
@@ -1205,9 +1205,7 @@ class FusionStream(Generic[T]):
         rotation = tilt.rotation_matrix
         if advance:
             trail.advance(at.pose, rotation, at.segment)
-        ranges = scan.ranges
-        with np.errstate(invalid='ignore'):
-            valid = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+        valid = lidar_readings(scan)
         if not valid.any():
             return scan
         points = self.base_to_laser(scan.frame_id).apply(lidar_points(scan))
@@ -1215,7 +1213,7 @@ class FusionStream(Generic[T]):
         if not on_ground.any():
             return scan
         self.counts.lidar_on_ground += int(on_ground.sum())
-        kept = ranges.copy()
+        kept = scan.ranges.copy()
         kept[np.flatnonzero(valid)[on_ground]] = np.nan
         return scan.with_ranges(kept)
 

@@ -72,6 +72,8 @@ class GroundTrail:
         self._segment: int | None = None
         self._height = 0.0  # the base's height above where the trail began
         self._travelled = 0.0
+        self._last_write: float | None = None  # the path length at the last write
+        self._lowest, self._highest = math.inf, -math.inf  # the ground heights written
         reach = math.ceil(self.settings.half_width / self.settings.cell)
         offsets = np.arange(-reach, reach + 1)
         self._offsets = np.stack(np.meshgrid(offsets, offsets, indexing='ij'), -1).reshape(-1, 2)
@@ -85,6 +87,8 @@ class GroundTrail:
         self._segment = None
         self._height = 0.0
         self._travelled = 0.0
+        self._last_write = None
+        self._lowest, self._highest = math.inf, -math.inf
 
     def advance(self, pose: PlanarPose, tilt: F64, segment: int) -> None:
         """The base at `pose` (odometry), tilted by `tilt` (3x3, base to a level frame of
@@ -101,7 +105,13 @@ class GroundTrail:
         else:
             self.clear()
         self._pose, self._segment = pose, segment
-        self._write(pose, tilt)
+        # Half a cell of travel changes no cell's height by much: write no more often.
+        if (
+            self._last_write is None
+            or self._travelled - self._last_write >= 0.5 * self.settings.cell
+        ):
+            self._write(pose, tilt)
+            self._last_write = self._travelled
 
     def on_ground(self, points: F64, pose: PlanarPose, tilt: F64) -> npt.NDArray[np.bool_]:
         """Which of `points` (N x 3, base frame, of the base at `pose` tilted by `tilt`)
@@ -109,20 +119,27 @@ class GroundTrail:
         settings = self.settings
         if self._pose is None or not points.size:
             return np.zeros(len(points), dtype=np.bool_)
-        level = points @ tilt.T
+        found = np.zeros(len(points), dtype=np.bool_)
+        # Only points at a height some cell's ground has can lie on it (a LiDAR's points
+        # stand its height above the base: on a level floor, none).
+        z = self._height + self._climb(pose, tilt, self._pose) + points @ tilt[2]
+        near = np.flatnonzero(
+            (z >= self._lowest - settings.tolerance) & (z <= self._highest + settings.tolerance)
+        )
+        if not near.size:
+            return found
+        level = points[near] @ tilt.T
+        z = z[near]
         cosine, sine = math.cos(pose.yaw), math.sin(pose.yaw)
         x = pose.x + cosine * level[:, 0] - sine * level[:, 1]
         y = pose.y + sine * level[:, 0] + cosine * level[:, 1]
-        z = self._height + self._climb(pose, tilt, self._pose) + level[:, 2]
         ix = np.floor(x / settings.cell).astype(np.int64)
         iy = np.floor(y / settings.cell).astype(np.int64)
         side = settings.side
         row, column = ix % side, iy % side
         known = (self._keys[row, column, 0] == ix) & (self._keys[row, column, 1] == iy)
         known &= self._written[row, column] >= self._travelled - settings.length
-        found: npt.NDArray[np.bool_] = known & (
-            np.abs(z - self._ground[row, column]) <= settings.tolerance
-        )
+        found[near] = known & (np.abs(z - self._ground[row, column]) <= settings.tolerance)
         return found
 
     @staticmethod
@@ -157,6 +174,9 @@ class GroundTrail:
         nearer = reach <= self._reach[row, column] + 0.5 * cell
         take = ~(same & fresh) | nearer
         row, column = row[take], column[take]
+        if row.size:
+            self._lowest = min(self._lowest, float(ground[take].min()))
+            self._highest = max(self._highest, float(ground[take].max()))
         self._keys[row, column, 0] = ix[take]
         self._keys[row, column, 1] = iy[take]
         self._ground[row, column] = ground[take]

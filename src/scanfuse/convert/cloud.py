@@ -176,10 +176,18 @@ def points_scan(
     )
 
 
+def lidar_readings(scan: Scan) -> npt.NDArray[np.bool_]:
+    """Which readings of a LaserScan are finite and in range: those `lidar_points` gives."""
+    ranges = scan.ranges.astype(np.float64)
+    valid: npt.NDArray[np.bool_] = (
+        np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+    )
+    return valid
+
+
 def lidar_points(scan: Scan) -> npt.NDArray[np.float64]:
     """The finite in-range readings of a LaserScan as 3D points in its own frame (z = 0)."""
-    ranges = scan.ranges.astype(np.float64)
-    valid = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
+    valid = lidar_readings(scan)
     angles = scan.angles()[valid]
-    reach = ranges[valid]
+    reach = scan.ranges[valid].astype(np.float64)
     return np.stack([reach * np.cos(angles), reach * np.sin(angles), np.zeros_like(reach)], axis=1)
