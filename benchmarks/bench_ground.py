@@ -6,7 +6,8 @@ estimated ground) against the scan above the mounting's plane, drop detection on
 (the pipeline's default), in interleaved batches: on the room as mounted (issue 25's
 budget: 1.15), seen from a body pitching by 0, +2 and -2 deg in turn (the estimate moves
 every frame, so the height tables are rebuilt every frame), and with a 1:12 ramp rising
-from 1.2 m ahead (a ramp rebuilds them every frame, with its profile).
+from 1.2 m ahead (a ramp rebuilds them every frame, with its profile). And the ground
+driven over (`scanfuse.trail`): one scan's advance and look-up of its readings.
 """
 
 from __future__ import annotations
@@ -17,16 +18,19 @@ import statistics
 import time
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from benchmarks import scenes
 from benchmarks.common import Row, median_seconds
 from scanfuse.config import FusionConfig
 from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
+from scanfuse.motion import PlanarPose
+from scanfuse.trail import GroundTrail
+from scanfuse.transforms import Transform
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-
-    import numpy as np
 
     from scanfuse.camera import CameraModel
 
@@ -63,8 +67,45 @@ def _with_ground(
     return call
 
 
+TRAIL_READINGS = 1440  # a Hokuyo-class LiDAR's readings a scan
+TRAIL_STEP = 0.035  # metres a scan: 0.35 m/s at 10 Hz
+
+
+def _trail_scan(pitch: float) -> Callable[[], object]:
+    """One scan's work of `GroundTrail` (advance, then look up every reading) on a robot
+    driving straight with its body pitched `pitch` (radians, nose-up), 8 m of path kept."""
+    trail = GroundTrail()
+    tilt = Transform.from_rpy(0.0, -pitch, 0.0).rotation_matrix
+    for index in range(round(trail.settings.length / TRAIL_STEP)):
+        trail.advance(PlanarPose(index * TRAIL_STEP, 0.0, 0.0), tilt, 0)
+    angles = np.linspace(-math.pi, math.pi, TRAIL_READINGS, endpoint=False)
+    # Readings 2 m away in the LiDAR's plane, 0.30 m above the base.
+    points = np.stack([2.0 * np.cos(angles), 2.0 * np.sin(angles), np.full_like(angles, 0.3)], 1)
+    place = [round(trail.settings.length / TRAIL_STEP)]
+
+    def call() -> object:
+        place[0] += 1
+        pose = PlanarPose(place[0] * TRAIL_STEP, 0.0, 0.0)
+        trail.advance(pose, tilt, 0)
+        return trail.on_ground(points, pose, tilt)
+
+    return call
+
+
 def run() -> list[Row]:
     rows = []
+    for pitch, note in (
+        (0.0, 'level: no reading near the ground'),
+        (math.radians(7.0), 'pitched 7 deg nose-up: every reading looked up'),
+    ):
+        rows.append(
+            Row(
+                SECTION,
+                f'ground trail per scan, {TRAIL_READINGS} readings',
+                median_seconds(_trail_scan(pitch)),
+                f'advance + look-up; body {note}',
+            )
+        )
     settings = GroundSettings.from_config(_CONFIG)
     for width, height in scenes.SIZES:
         size = f'{width}x{height}'
