@@ -560,11 +560,12 @@ def _crossings(
                 below = (low_gap if on_low else gap) - target
                 share = above / (above - below) if above > below else 1.0
                 g_before = low[c, before] if on_low else profile[c, before]
-                lift = g_before + share * ((g_low if on_low else g) - g_before)
+                g_here = g_low if on_low else g
+                lift = g_before + share * (g_here - g_before)
                 if target > 0.0 and z > z_before:
                     depth = z_before + share * (z - z_before)
                     lift += slope_margin(
-                        margin_sigmas * depth * depth, (g - g_before) / (z - z_before), down
+                        margin_sigmas * depth * depth, (g_here - g_before) / (z - z_before), down
                     )
                 lifts[pending, i] = lift
                 pending += 1
