@@ -9,16 +9,19 @@ geometry alone; a wall's reading in the same direction, nearer, stands well abov
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
 from scanfuse.motion import PlanarPose
-from scanfuse.scan import Scan
 from scanfuse.stream import FusionStream
 from scanfuse.trail import MAX_STEP, GroundTrail, TrailSettings
 from scanfuse.transforms import Transform
-from tests.support.ground_scene import NS, config
+from tests.support.ground_scene import NS, config, lidar_scan
+
+if TYPE_CHECKING:
+    from scanfuse.scan import Scan
 
 GRADE = 1.0 / 8.0
 SLOPE = math.atan(GRADE)
@@ -26,7 +29,6 @@ FOOT = 1.0  # x where the ramp starts
 START = -3.0
 LIDAR_HEIGHT = 0.30
 STEP = 0.035  # metres a scan: 0.35 m/s at 10 Hz
-READINGS = 360
 HALF_WIDTH = TrailSettings().half_width
 
 
@@ -112,22 +114,13 @@ def test_an_odometry_jump_or_reset_forgets_the_trail():
 
 def scan_at(x: float, stamp_ns: int) -> Scan:
     """The LiDAR's scan at x: a wall 3 m ahead, the floor behind where the plane meets it."""
-    increment = 2.0 * math.pi / READINGS
-    angles = -math.pi + increment * np.arange(READINGS)
+    empty = lidar_scan(stamp_ns)
+    angles = empty.angles()
     ranges = np.array([floor_hit(x, float(a)) for a in angles])
     ahead = np.cos(angles) > 0.5
     ranges[ahead] = 3.0 / np.cos(angles[ahead])
     ranges[ranges > 9.0] = np.inf
-    return Scan(
-        angle_min=-math.pi,
-        angle_max=math.pi - increment,
-        angle_increment=increment,
-        range_min=0.05,
-        range_max=10.0,
-        ranges=ranges.astype(np.float32),
-        frame_id='laser',
-        stamp_ns=stamp_ns,
-    )
+    return empty.with_ranges(ranges.astype(np.float32))
 
 
 def drive(*, imu: bool = True, **changes: object) -> tuple[Scan, Scan, FusionStream[int]]:
