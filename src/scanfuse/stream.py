@@ -1208,7 +1208,7 @@ class FusionStream(Generic[T]):
         valid = lidar_readings(scan)
         if not valid.any():
             return scan
-        points = self.base_to_laser(scan.frame_id).apply(lidar_points(scan))
+        points = self.base_to_laser(scan.frame_id).apply(lidar_points(scan, valid))
         on_ground = trail.on_ground(points, at.pose, rotation)
         if not on_ground.any():
             return scan

@@ -78,9 +78,6 @@ class GroundTrail:
         offsets = np.arange(-reach, reach + 1)
         self._offsets = np.stack(np.meshgrid(offsets, offsets, indexing='ij'), -1).reshape(-1, 2)
 
-    def __len__(self) -> int:
-        return int((self._keys[..., 0] != _NO_CELL).sum())
-
     def clear(self) -> None:
         self._keys[...] = _NO_CELL
         self._pose = None

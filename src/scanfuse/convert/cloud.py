@@ -185,9 +185,12 @@ def lidar_readings(scan: Scan) -> npt.NDArray[np.bool_]:
     return valid
 
 
-def lidar_points(scan: Scan) -> npt.NDArray[np.float64]:
-    """The finite in-range readings of a LaserScan as 3D points in its own frame (z = 0)."""
-    valid = lidar_readings(scan)
+def lidar_points(
+    scan: Scan, readings: npt.NDArray[np.bool_] | None = None
+) -> npt.NDArray[np.float64]:
+    """The finite in-range readings of a LaserScan as 3D points in its own frame (z = 0);
+    `readings`: `lidar_readings(scan)` when the caller has it already."""
+    valid = lidar_readings(scan) if readings is None else readings
     angles = scan.angles()[valid]
     reach = scan.ranges[valid].astype(np.float64)
     return np.stack([reach * np.cos(angles), reach * np.sin(angles), np.zeros_like(reach)], axis=1)
