@@ -11,14 +11,16 @@ import pytest
 
 from scanfuse.sim import Ground, Pose2D, SimConfig, SimError, Simulation, Trace
 from scanfuse.sim.robot import SPRUNG, RobotSpec, Suspension
-from scanfuse.sim.sensors import lidar_profile
+from scanfuse.sim.sensors import VISIBLE_GROUPS, lidar_profile
 from scanfuse.sim.truth import TruthScanner
 from scanfuse.sim.worlds import (
+    GROUND_SOLID_GROUP,
     RAMP_FOOT,
     RAMP_RISE,
     World,
     box,
     box_on_ground,
+    ground_runs,
     ramp_ledge_world,
     ramp_pieces,
     ramp_world,
@@ -38,6 +40,9 @@ def straight_down(sim: Simulation, x: float, y: float) -> tuple[float, str]:
         sim.model, sim.data, np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom
     )
     return distance, sim.model.geom(int(geom[0])).name
+
+
+SOLID_ONLY = np.array([int(g == GROUND_SOLID_GROUP) for g in range(6)], dtype=np.uint8)
 
 
 def nose_down(sim: Simulation) -> float:
@@ -160,6 +165,12 @@ def test_the_sprung_robot_drives_up_the_ramp_its_base_rising_by_the_ramps_height
         assert z - z0 == pytest.approx(RAMP_RISE, abs=0.005)
         assert sim.fell_ns is None
         assert not trace.contacts  # ramps are floor
+        # The wheels roll up the ramp: rubber (friction 1) holds far more than the slope asks
+        # (1:8 is a friction of 0.125), so the wheel odometry's distance is the distance
+        # driven along the floor and the ramp.
+        positions = np.array([s.position for s in trace.states])
+        driven = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+        assert trace.states[-1].odometry.x == pytest.approx(driven, rel=0.03)
         # Half way up the ramp the body is pitched nose-up by the ramp's angle and leans back
         # on its springs by at most 2.5 degrees more (climbing, the wheels' torque and
         # gravity pitch it back).
@@ -176,25 +187,64 @@ def test_the_sprung_robot_drives_up_the_ramp_its_base_rising_by_the_ramps_height
         sim.close()
 
 
-def test_the_rigid_robot_cannot_climb_onto_the_ramp():
-    # Its front caster rides up the ramp's foot and lifts its wheels off the floor.
+def test_the_rigid_robot_cannot_climb_the_ramp():
+    # Its front caster rides up the ramp's foot and lifts its wheels off the floor: they spin,
+    # and the robot gets no more than half way up (the ramp is 1.2 m long).
     sim = Simulation(SimConfig(world='ramp-8', robot=RobotSpec(), **LOW))
     try:
         trace = drive_straight(sim, 0.3, 12.0)
-        assert trace.states[-1].position[0] < RAMP_FOOT
+        last = trace.states[-1]
+        assert last.position[0] < RAMP_FOOT + 8.0 * RAMP_RISE / 2
+        assert last.odometry.x > last.position[0] + 0.5
     finally:
         sim.close()
 
 
-def test_the_robot_drives_over_sills_without_contacts():
-    sim = Simulation(SimConfig(world='sills', seed=1, robot=SPRUNG, **LOW))
+@pytest.mark.parametrize(('seed', 'heading'), [(1, 0.0), (3, 10.0), (4, -10.0)])
+def test_the_robot_drives_over_sills_without_contacts(seed, heading):
+    # Square to the door or 10 degrees off it (as a planned path crosses it), through the
+    # door's middle 1.5 m ahead.
+    sim = Simulation(SimConfig(world='sills', seed=seed, robot=SPRUNG, **LOW))
     try:
         door = next(p for p in sim.world.ground if p.name == 'sill0_top').rectangle
-        sim.place(Pose2D(0.0, (door[2] + door[3]) / 2, 0.0))
+        yaw = math.radians(heading)
+        sim.place(Pose2D(0.0, (door[2] + door[3]) / 2 - 1.5 * math.tan(yaw), yaw))
         trace = drive_straight(sim, 0.3, 9.0)
         assert trace.states[-1].position[0] > 1.5 + 0.3  # past the first door's sill
         assert not trace.contacts
         assert sim.fell_ns is None
+    finally:
+        sim.close()
+
+
+def test_each_sill_and_ramp_is_one_solid_the_sensors_do_not_see():
+    assert [[p.name for p in run] for run in ground_runs(sills_world(2).ground)] == [
+        ['sill0_in', 'sill0_top', 'sill0_out'],
+        ['sill1_in', 'sill1_top', 'sill1_out'],
+    ]
+    assert [len(run) for run in ground_runs(ramp_world(0, grade=8.0).ground)] == [3]
+    sim = Simulation(SimConfig(world='sills', seed=2, **LOW))
+    try:
+        piece = next(p for p in sim.world.ground if p.name == 'sill0_top')
+        x, y = (piece.rectangle[0] + piece.rectangle[1]) / 2, sum(piece.rectangle[2:]) / 2
+        # The sensors' rays meet the sill's top; the solid's top (made opaque: mj_ray skips
+        # transparent geoms) lies exactly there.
+        solid = sim.model.geom('sill0_in_solid').id
+        sim.model.geom_rgba[solid, 3] = 1.0
+        for groups, name in ((VISIBLE_GROUPS, 'sill0_top'), (SOLID_ONLY, 'sill0_in_solid')):
+            geom = np.zeros(1, dtype=np.int32)
+            distance = mujoco.mj_ray(
+                sim.model,
+                sim.data,
+                np.array([x, y, 1.0]),
+                np.array([0.0, 0.0, -1.0]),
+                groups,
+                1,
+                -1,
+                geom,
+            )
+            assert sim.model.geom(int(geom[0])).name == name
+            assert distance == pytest.approx(1.0 - piece.z_start, abs=1e-6)
     finally:
         sim.close()
 

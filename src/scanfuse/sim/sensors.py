@@ -1,7 +1,8 @@
 """Simulated 2D LiDAR and depth camera: named profiles, ray casting, noise models.
 
 Both sensors cast all their rays in one `mujoco.mj_multiRay` call per frame. The
-robot's own geoms (group 3) are excluded through the `geomgroup` argument.
+robot's own geoms (group 3) and the solids under the ground pieces (group 4, which only
+collide) are excluded through the `geomgroup` argument.
 
 Noise (switchable, seeded):
 
@@ -29,6 +30,7 @@ from scanfuse.camera import CameraModel
 from scanfuse.scan import AngleGrid
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.robot import ROBOT_GEOM_GROUP
+from scanfuse.sim.worlds import GROUND_SOLID_GROUP
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -36,8 +38,9 @@ if TYPE_CHECKING:
     Matrix = npt.NDArray[np.float64]
 
 OPTICAL_FRAME = 'camera_depth_optical_frame'
-# Geom groups a ray may hit: every group except the robot's.
-VISIBLE_GROUPS = np.array([int(g != ROBOT_GEOM_GROUP) for g in range(6)], dtype=np.uint8)
+# Geom groups a ray may hit: every group except the robot's and the ground's solids.
+HIDDEN_GROUPS = (ROBOT_GEOM_GROUP, GROUND_SOLID_GROUP)
+VISIBLE_GROUPS = np.array([int(g not in HIDDEN_GROUPS) for g in range(6)], dtype=np.uint8)
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,7 @@ from scanfuse.sim.robot import (
     WheelOdometry,
 )
 from scanfuse.sim.sensors import (
+    HIDDEN_GROUPS,
     DepthBackend,
     DepthNoise,
     LidarNoise,
@@ -496,9 +497,12 @@ def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
         )
     # The camera belongs to the body that carries the sensors, not to a wheel.
     body = robot.mjcf(world.start, camera_xml)
+    # Friction as stiff as the contact (elliptic cones, impratio 10): MuJoCo's default soft
+    # friction lets a wheel creep under any traction, so the robot's wheels slipped 20 % of
+    # the way up a 1:8 ramp where rubber (friction 1, 0.125 needed) holds.
     return f"""<mujoco model="scanfuse_{world.name}">
 <compiler angle="radian"/>
-<option timestep="{config.timestep:.6g}" integrator="implicitfast"/>
+<option timestep="{config.timestep:.6g}" integrator="implicitfast" cone="elliptic" impratio="10"/>
 <visual><global offwidth="{width}" offheight="{height}"/><map znear="0.01" zfar="50"/></visual>
 <asset>{''.join(world.all_assets())}</asset>
 <worldbody>
@@ -527,7 +531,8 @@ class RendererDepth:
             raise SimError(msg) from err
         self._renderer.enable_depth_rendering()
         self._option = mujoco.MjvOption()
-        self._option.geomgroup[ROBOT_GEOM_GROUP] = 0
+        for group in HIDDEN_GROUPS:
+            self._option.geomgroup[group] = 0
         self._far = 0.999 * model.vis.map.zfar * model.stat.extent
 
     def depth(self, data: mujoco.MjData) -> npt.NDArray[np.float64]:

@@ -34,7 +34,7 @@ import numpy as np
 from scanfuse.sim.errors import SimError
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Sequence
 
     import numpy.typing as npt
 
@@ -149,6 +149,9 @@ class Drop:
 
 
 GROUND_KINDS = ('ramp', 'platform', 'sill')
+# The group of the solids the robot drives on over a run of ground pieces (`ground_solids`):
+# they collide and no sensor sees them (the pieces themselves are seen and do not collide).
+GROUND_SOLID_GROUP = 4
 # A ground piece's solid reaches this far below its lowest surface (into the floor beneath),
 # metres: its mesh never has two vertices in one place, and no gap shows at its foot.
 GROUND_FOOTING = 0.01
@@ -206,19 +209,67 @@ class Ground:
         return rise
 
     def mjcf(self, rgba: str) -> str:
-        """A convex mesh geom (its asset inline through `asset`) named after the piece."""
-        return f'<geom name="{self.name}" type="mesh" mesh="{self.name}_mesh" pos="0 0 0" {rgba}/>'
+        """A convex mesh geom (its asset inline through `asset`) named after the piece, seen
+        by the sensors; the robot drives on its run's solid (`ground_solids`) instead."""
+        return (
+            f'<geom name="{self.name}" type="mesh" mesh="{self.name}_mesh" pos="0 0 0" '
+            f'contype="0" conaffinity="0" {rgba}/>'
+        )
 
     def asset(self) -> str:
-        x_min, x_max, y_min, y_max = self.rectangle
-        bottom = min(self.z_start, self.z_end) - GROUND_FOOTING
-        vertices = [
-            (x, y, z)
-            for x, top in ((x_min, self.z_start), (x_max, self.z_end))
-            for y in (y_min, y_max)
-            for z in (bottom, top)
-        ]
-        return f'<mesh name="{self.name}_mesh" vertex="{_fmt(*np.ravel(vertices))}"/>'
+        return _prism_mesh(f'{self.name}_mesh', [self])
+
+
+def _prism_mesh(name: str, pieces: Sequence[Ground]) -> str:
+    """A mesh asset under the top surfaces of `pieces` (one after another along x, one y span),
+    down to `GROUND_FOOTING` below their lowest point."""
+    _, _, y_min, y_max = pieces[0].rectangle
+    bottom = min(min(piece.z_start, piece.z_end) for piece in pieces) - GROUND_FOOTING
+    tops = [(pieces[0].rectangle[0], pieces[0].z_start)]
+    tops += [(piece.rectangle[1], piece.z_end) for piece in pieces]
+    vertices = [(x, y, z) for x, top in tops for y in (y_min, y_max) for z in (bottom, top)]
+    return f'<mesh name="{name}" vertex="{_fmt(*np.ravel(vertices))}"/>'
+
+
+def ground_runs(pieces: Sequence[Ground]) -> list[list[Ground]]:
+    """The ground pieces in runs the robot drives on as one convex solid: one after another
+    along x over one y span, each piece's surface starting where the last one's ends, none
+    rising more steeply than the one before (a sill: bevel up, top, bevel down; a ramp: up,
+    platform, down).
+
+    Two solids meeting under a crest touch the robot at the edge between them: MuJoCo's
+    contact with the higher one's end face there points along the floor and stops a wheel or
+    a caster as a step would (the sprung robot reared up and tipped over at door sills). One
+    solid has no such edge.
+    """
+    runs: list[list[Ground]] = []
+    for piece in sorted(pieces, key=lambda p: (p.rectangle[2], p.rectangle[3], p.rectangle[0])):
+        last = runs[-1][-1] if runs else None
+        if (
+            last is not None
+            and last.rectangle[2:] == piece.rectangle[2:]
+            and math.isclose(last.rectangle[1], piece.rectangle[0], abs_tol=1e-9)
+            and math.isclose(last.z_end, piece.z_start, abs_tol=1e-9)
+            and piece.slope <= last.slope
+        ):
+            runs[-1].append(piece)
+        else:
+            runs.append([piece])
+    return runs
+
+
+def ground_solids(pieces: Sequence[Ground]) -> list[tuple[str, str, str]]:
+    """(geom name, geom MJCF, mesh asset) of the solid under each run of ground pieces
+    (`ground_runs`): it collides with the robot, and no sensor sees it."""
+    solids = []
+    for run in ground_runs(pieces):
+        name = f'{run[0].name}_solid'
+        geom = (
+            f'<geom name="{name}" type="mesh" mesh="{name}_mesh" pos="0 0 0" '
+            f'group="{GROUND_SOLID_GROUP}" rgba="0 0 0 0" friction="1 0.005 0.0001"/>'
+        )
+        solids.append((name, geom, _prism_mesh(f'{name}_mesh', run)))
+    return solids
 
 
 @dataclass(frozen=True)
@@ -251,6 +302,7 @@ class World:
         """Geom name -> kind, for every obstacle and every piece of floor ('floor')."""
         kinds = {name: 'floor' for name, _ in self._floor_pieces()}
         kinds.update({piece.name: 'floor' for piece in self.ground})
+        kinds.update({name: 'floor' for name, _, _ in ground_solids(self.ground)})
         kinds.update({obstacle.name: obstacle.kind for obstacle in self.obstacles})
         return kinds
 
@@ -263,11 +315,13 @@ class World:
         """The floor and every obstacle geom, to be placed in `<worldbody>`."""
         pieces = [geom for _, geom in self._floor_pieces()]
         pieces += [piece.mjcf(GROUND_RGBA) for piece in self.ground]
+        pieces += [geom for _, geom, _ in ground_solids(self.ground)]
         return '\n'.join([*pieces, *(obstacle.mjcf for obstacle in self.obstacles)])
 
     def all_assets(self) -> tuple[str, ...]:
         """The obstacles' mesh assets and every ground piece's."""
-        return (*self.assets, *(piece.asset() for piece in self.ground))
+        solids = (mesh for _, _, mesh in ground_solids(self.ground))
+        return (*self.assets, *(piece.asset() for piece in self.ground), *solids)
 
     def surface_height(
         self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
