@@ -10,7 +10,7 @@ import pytest
 from scanfuse.cli import main
 from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import ConfigError
-from scanfuse.evaluate.closed_loop import clutter_goal, odom_to_world, world_to_odom
+from scanfuse.evaluate.closed_loop import clutter_goal, map_to_odom, odom_to_world, world_to_odom
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.methods import METHODS, MethodStream, method_spec
 from scanfuse.evaluate.results import EvaluationResult, ResultsError
@@ -134,6 +134,14 @@ def test_odometry_frame_round_trip():
     assert (x, y) == pytest.approx((1.0, 0.0))
     back = odom_to_world(start, Pose2D(x, y, 0.0))
     assert (back.x, back.y) == pytest.approx((-2.2, 1.5))
+
+
+def test_a_map_goal_follows_the_robot_into_a_drifted_odometry_frame():
+    # On the map the robot is at (1, 2) facing +y; its odometry says (0.5, 0) facing +x.
+    to_odom = map_to_odom(Pose2D(1.0, 2.0, math.pi / 2), Pose2D(0.5, 0.0, 0.0))
+    assert to_odom(1.0, 3.0) == pytest.approx((1.5, 0.0))  # 1 m ahead of the robot
+    assert to_odom(0.0, 2.0) == pytest.approx((0.5, 1.0))  # 1 m to its left
+    assert to_odom(1.0, 2.0) == pytest.approx((0.5, 0.0))  # where it stands
 
 
 def test_clutter_goal_lies_behind_a_low_obstacle():

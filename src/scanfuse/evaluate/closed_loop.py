@@ -1,11 +1,15 @@
 """Closed-loop trials: the robot drives to a goal behind obstacles with what a method's scan shows.
 
-The navigator knows only what a real robot knows: its wheel odometry and the
-scan the method gives it. It keeps a Nav2-like obstacle layer (`costmap.Costmap`:
-marking, and raytrace clearing that erases what a later ray passes over) in the
-odometry frame, each scan at the odometry pose of its stamp (as a costmap looks the
-scan up in TF), plans with A* on it inflated by its radius, follows the path, and
-a stop/slow zone on the current scan guards its front. Whether it collides is
+The navigator knows what a real Nav2 robot knows: its wheel odometry, the scan the
+method gives it, and where it is on the map. It keeps a Nav2-like obstacle layer
+(`costmap.Costmap`: marking, and raytrace clearing that erases what a later ray passes
+over) in the odometry frame, each scan at the odometry pose of its stamp (as a costmap
+looks the scan up in TF), plans with A* on it inflated by its radius, follows the path,
+and a stop/slow zone on the current scan guards its front. Its goal and waypoints are on
+the map (the world frame), brought into the odometry frame at every step through the
+map -> odom transform a localizer (AMCL, slam_toolbox) publishes, exact here
+(`map_to_odom`): wheel odometry drifts (slipping at a sill, on a ramp, in a turn), and a
+robot's goal does not drift with it. Whether it collides is
 decided by MuJoCo's contacts, whether it fell by its base leaving the floor plane
 (`Simulation.check_fall`), whether it arrived by its true pose.
 
@@ -187,6 +191,22 @@ def world_to_odom(start: Pose2D, x: float, y: float) -> tuple[float, float]:
     c, s = math.cos(start.yaw), math.sin(start.yaw)
     dx, dy = x - start.x, y - start.y
     return c * dx + s * dy, -s * dx + c * dy
+
+
+def map_to_odom(
+    true_pose: Pose2D, odometry: Pose2D
+) -> Callable[[float, float], tuple[float, float]]:
+    """World (map) point -> odometry frame, with the robot at `true_pose` on the map and at
+    `odometry` in the odometry frame: the transform a localizer publishes as map -> odom."""
+    c, s = math.cos(true_pose.yaw), math.sin(true_pose.yaw)
+    co, so = math.cos(odometry.yaw), math.sin(odometry.yaw)
+
+    def to_odom(x: float, y: float) -> tuple[float, float]:
+        dx, dy = x - true_pose.x, y - true_pose.y
+        ahead, left = c * dx + s * dy, -s * dx + c * dy  # in the robot's frame
+        return odometry.x + co * ahead - so * left, odometry.y + so * ahead + co * left
+
+    return to_odom
 
 
 def odom_to_world(start: Pose2D, pose: Pose2D) -> Pose2D:
@@ -543,6 +563,10 @@ def drive(
         believed = feed.odometry_at(frame.stamp_ns) or now
         if keep_frames:
             feed.log.frames.append(FrameRecord(frame, believed, scan))
+        to_odom = map_to_odom(sim.true_pose(), now)
+        navigator.goal = to_odom(*trial.goal)
+        ahead = trial.waypoints[len(trial.waypoints) - len(navigator.waypoints) :]
+        navigator.waypoints = [to_odom(*point) for point in ahead]
         sim.set_command(*navigator.step(scan, now, believed))
 
     feed = StreamFeed([driver, *observers], released, watchers)
