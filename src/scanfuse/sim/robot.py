@@ -150,8 +150,8 @@ class RobotSpec:
     wheel_radius: float = 0.05
     wheel_separation: float = 0.30
     wheel_friction: float = 1.0
-    # A caster 6 cm across rolls up a door sill's 1:2 bevel, 1-2 cm high; on a 4 cm one the
-    # sprung robot reared up and tipped over backwards at one sill of five.
+    # A caster 6 cm across rolls up a door sill's 1:2 bevel, 1-2 cm high (on 4 cm ones, before
+    # each sill was one solid, the sprung robot reared up and tipped over at one sill of five).
     caster_radius: float = 0.03
     caster_offset: float = 0.13
     max_wheel_torque: float = 2.0
