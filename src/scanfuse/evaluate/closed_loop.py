@@ -198,13 +198,12 @@ def map_to_odom(
 ) -> Callable[[float, float], tuple[float, float]]:
     """World (map) point -> odometry frame, with the robot at `true_pose` on the map and at
     `odometry` in the odometry frame: the transform a localizer publishes as map -> odom."""
-    c, s = math.cos(true_pose.yaw), math.sin(true_pose.yaw)
-    co, so = math.cos(odometry.yaw), math.sin(odometry.yaw)
+    robot_in_map = PlanarPose(true_pose.x, true_pose.y, true_pose.yaw)
+    odom_from_map = PlanarPose(odometry.x, odometry.y, odometry.yaw).compose(robot_in_map.inverse())
 
     def to_odom(x: float, y: float) -> tuple[float, float]:
-        dx, dy = x - true_pose.x, y - true_pose.y
-        ahead, left = c * dx + s * dy, -s * dx + c * dy  # in the robot's frame
-        return odometry.x + co * ahead - so * left, odometry.y + so * ahead + co * left
+        point = odom_from_map.compose(PlanarPose(x, y, 0.0))
+        return point.x, point.y
 
     return to_odom
 
