@@ -278,6 +278,28 @@ def test_a_refused_match_keeps_the_correction_and_starts_a_new_reference():
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)
 
 
+def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference():
+    drift = DriftCorrection()
+    mount = Transform()
+    drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)
+    # Odometry over-counts a turn of 0.2 rad while a 1:8 ramp pitches the plane 7.1 degrees.
+    true, odometry = PlanarPose(0.0, 0.0, 0.2), PlanarPose(0.0, 0.0, 0.2 * OVER_COUNT)
+    tilted = drift.update(room(base_in_room(true)), odometry, mount, tilt=math.atan(1 / 8))
+    assert tilted is not None
+    assert tilted.refused is Refusal.TILTED
+    assert drift.correction == PlanarPose(0.0, 0.0, 0.0)  # odometry alone meanwhile
+    assert drift.refused == {Refusal.TILTED: 1}
+    # Level again (up to `max_tilt`): the first scan is a new reference, the next matches it.
+    level = drift.settings.max_tilt
+    assert drift.update(room(base_in_room(true)), odometry, mount, tilt=level) is None
+    true, odometry = PlanarPose(0.0, 0.0, 0.4), PlanarPose(0.0, 0.0, 0.4 * OVER_COUNT)
+    matched = drift.update(room(base_in_room(true)), odometry, mount, tilt=level)
+    assert matched is not None
+    assert matched.accepted
+    # The correction takes out the over-count since the new reference, not the one before.
+    assert drift.corrected(odometry).yaw == pytest.approx(0.4 + 0.2 * (OVER_COUNT - 1), abs=2e-3)
+
+
 def test_an_upside_down_lidar_s_matches_are_turned_back_into_the_base_s_turn():
     # Mounted rolled by pi: the LiDAR's angle a looks along the base's bearing -a, so the
     # scan of a base heading `yaw` holds the room's range at world bearing yaw - a.

@@ -1287,7 +1287,9 @@ class FusionStream(Generic[T]):
         Without a LiDAR there are no walls to match: odometry alone."""
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
-        result = self.drift.update(scan, base, base_to_laser)
+        result = self.drift.update(
+            scan, base, base_to_laser, tilt=self._plane_tilt(scan.stamp_ns, base_to_laser)
+        )
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
             self._note_once(
@@ -1298,6 +1300,16 @@ class FusionStream(Generic[T]):
         elif result is not None:
             self.counts.drift_matched += 1
         return self.drift.corrected(base)
+
+    def _plane_tilt(self, stamp_ns: int, base_to_laser: Transform) -> float:
+        """Radians between the plane of a LiDAR mounted at `base_to_laser` and level, by
+        the IMU's tilt of the base at `stamp_ns` (0.0: no IMU sample then, taken as level)."""
+        tilt = self.imu.tilt_at(stamp_ns)
+        if tilt is None:
+            return 0.0
+        rotation = tilt.rotation_matrix @ base_to_laser.rotation_matrix
+        # The LiDAR's axis against gravity; a LiDAR mounted upside down sweeps the same plane.
+        return math.acos(min(1.0, abs(float(rotation[2, 2]))))
 
     def _clear_seen(
         self,
