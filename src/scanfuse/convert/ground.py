@@ -416,9 +416,11 @@ def ground_profile(
     )
 
 
-# Share of the learnt correction that fades per frame in which no floor is found (half of it
-# gone in about 7 frames: half a second at 15 Hz).
-FALLBACK_FADE = 0.1
+# Share of the learnt correction that fades per frame in which no floor is found: half of it
+# each frame. What was learnt may be a ramp ahead, kept in the camera's frame, so it turns
+# with the robot. Fading a tenth a frame, the tilt of a down ramp learnt at its crest outlived
+# the robot's turns there to face the walls, and one terrain trial stalled on the platform.
+FALLBACK_FADE = 0.5
 
 # The mount check: over this many frames whose floor was found, a mean disagreement beyond
 # these between the floor and the mounting is reported.
