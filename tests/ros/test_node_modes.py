@@ -72,9 +72,11 @@ def test_two_corner_lidars_without_a_camera_in_base_link_over_dds(tmp_path, loop
     assert player.wait(timeout=60) == 0, loop.log('player')
     received = loop.received(linger=1.5)
     scans = [scan_from_cdr(raw) for _, raw in received.get('/scan_fused', [])]
-    # Best effort may lose a few; the node may match the rear publisher a little after the
-    # front one: from the first scan with both LiDARs' readings on, every one is checked.
-    checked = 0
+    # The node may match the rear publisher a little after the front one, and best effort
+    # may lose a message: a scan fused while one LiDAR's message is missing covers only the
+    # other's share. Every scan must be right; from the first with both LiDARs' readings on,
+    # at most two (one lost message's) may lack one.
+    checked = partial = 0
     for scan in scans:
         assert scan.frame_id == 'base_link'
         assert len(scan) == 720
@@ -82,9 +84,12 @@ def test_two_corner_lidars_without_a_camera_in_base_link_over_dds(tmp_path, loop
         assert error <= 0.02
         if covered < 0.95 and not checked:
             continue
-        assert covered >= 0.95
-        checked += 1
+        if covered >= 0.95:
+            checked += 1
+        else:
+            partial += 1
     assert checked >= 14, loop.log('node')
+    assert partial <= 2, loop.log('node')
     # No camera is no problem: fusing while the LiDARs played, never a word of a camera.
     reports = _diagnostics(received)
     assert any(h['level'] == '0' and float(h['scan rate (Hz)']) > 0 for h in reports), reports
