@@ -56,7 +56,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from scanfuse.camera import CameraModel
-    from scanfuse.convert.ground import GroundProfile
+    from scanfuse.convert.ground import GroundProfile, Lifts
     from scanfuse.motion import PlanarPose
     from scanfuse.scan import AngleGrid, Scan
     from scanfuse.transforms import Transform
@@ -618,7 +618,7 @@ def slab_points(
     range_min: float,
     range_max: float,
     agreement: float = 0.0,
-    lifts: F64 | None = None,
+    lifts: Lifts | None = None,
 ) -> tuple[F64, F64]:
     """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
 
@@ -628,7 +628,7 @@ def slab_points(
     cluster of each (the faces behind it, a box's far edge seen over its top, are here too).
     With `agreement` > 0, only pixels whose left and right neighbours' depths lie within
     that share of their own (a pixel of the image's first or last column has no two).
-    `lifts` (2 x pixels: `GroundProfile.ground_under` at the slab's top and bottom) raise the
+    `lifts` (`GroundProfile.slab_lifts`: its first two levels, the slab's top and bottom) raise the
     slab's top and bottom per pixel by the ground under them (a ramp), as the obstacle scan's.
     """
     if not (math.isfinite(agreement) and agreement >= 0.0):
@@ -640,7 +640,6 @@ def slab_points(
     x_n, y_n = camera.normalized_coordinates
     out_x = np.empty(image.size)
     out_y = np.empty(image.size)
-    shape = (2, *image.shape)
     found = _SLAB(
         pixels,
         1.0 if metres else 1e-3,
@@ -650,7 +649,8 @@ def slab_points(
         np.asarray(odom_to_optical.translation, dtype=np.float64),
         slab[0],
         slab[1],
-        np.zeros((2, 0, 0)) if lifts is None else np.asarray(lifts[:2]).reshape(shape),
+        np.zeros((2, 0, 0)) if lifts is None else lifts.coarse,
+        1 if lifts is None else lifts.stride,
         range_min,
         range_max,
         agreement,
@@ -670,6 +670,7 @@ def _slab_loop(
     low: float,
     high: float,
     lifts: Any,
+    stride: int,
     range_min: float,
     range_max: float,
     agreement: float,
@@ -677,11 +678,17 @@ def _slab_loop(
     out_y: Any,
 ) -> int:
     """`slab_points` one pixel at a time: how many points it wrote to out_x, out_y.
-    `lifts` (2 x rows x columns: the slab's top and bottom raised per pixel; 0 rows: none)."""
+    `lifts` (the slab's top and bottom raised, per block of `stride` pixels a side: levels x
+    block rows x block columns, `ground.Lifts.coarse`; 0 rows: none)."""
     rows, columns = depth.shape
-    lifted = lifts.shape[1] >= rows and lifts.shape[2] >= columns
+    lifted = (
+        lifts.shape[0] >= 2
+        and lifts.shape[1] * stride >= rows
+        and lifts.shape[2] * stride >= columns
+    )
     found = 0
     for v in range(rows):
+        block_row = v // stride
         for u in range(columns):
             z = depth[v, u] * scale
             if not range_min <= z <= range_max:  # NaN and 0 (no return) fail too
@@ -689,7 +696,11 @@ def _slab_loop(
             ox = x_n[v, u] * z
             oy = y_n[v, u] * z
             height = rotation[2, 0] * ox + rotation[2, 1] * oy + rotation[2, 2] * z + origin[2]
-            top, bottom = (high + lifts[0, v, u], low + lifts[1, v, u]) if lifted else (high, low)
+            if lifted:
+                block = u // stride
+                top, bottom = high + lifts[0, block_row, block], low + lifts[1, block_row, block]
+            else:
+                top, bottom = high, low
             if not bottom <= height <= top:
                 continue
             if agreement > 0.0:

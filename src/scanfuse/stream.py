@@ -1372,10 +1372,8 @@ class FusionStream(Generic[T]):
             # The ramps of this frame's ground, as its obstacle scan measured (the same lifts).
             lifts=None
             if profile is None
-            else profile.ground_under(
-                frame.camera,
-                own.range_max,
-                (own.max_obstacle_height, own.min_obstacle_height, 0.0),
+            else profile.slab_lifts(
+                frame.camera, own.range_max, own.min_obstacle_height, own.max_obstacle_height
             ),
         )
         keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)

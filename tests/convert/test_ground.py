@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
+from scanfuse.camera import CameraModel
 from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.stream import FusionStream
 from tests.support.ground_scene import (
@@ -257,22 +258,39 @@ def test_a_ramp_seen_from_a_pitching_body_is_floor_too():
     assert right >= 0.95
 
 
+# A camera whose ramp lifts come in blocks of 3 pixels a side (`ground.lift_stride`), the
+# last row and column of blocks cut short.
+ODD_CAMERA = CameraModel.from_intrinsics(1000, 701, 500.0, 500.0, 499.5, 350.0)
+
+
+@pytest.mark.parametrize('camera', [CAMERA, ODD_CAMERA], ids=['848x480', '1000x701'])
 @pytest.mark.parametrize('ramp', [False, True], ids=['plane', 'ramp'])
-def test_the_compiled_height_tables_are_the_numpy_ones(ramp):
+def test_the_compiled_height_tables_are_the_numpy_ones(ramp, camera):
     from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
     from scanfuse.scan import AngleGrid
     from scanfuse.transforms import Extrinsics
 
     extrinsics = Extrinsics.from_mounting(camera_height=HEIGHT, camera_pitch=PITCH)
     pose = optical_pose(body_pitch=1.5, body_roll=-1.0)
-    depth = ramp_depth(1.0 / 12.0, pose) if ramp else millimetres(box_depth(CAMERA, pose, [BOX]))
+    rise = 1.0 / 12.0
+    box = (RAMP_BOX, RAMP_BOX + 0.3, -0.3, 0.3, rise * (RAMP_BOX - RAMP_START) - 0.05, 0.2)
+    depth = millimetres(
+        slope_depth(camera, pose, start=RAMP_START, rise=rise, boxes=[box])
+        if ramp
+        else box_depth(camera, pose, [BOX])
+    )
     tracker = GroundTracker(GroundSettings())
-    plane = tracker.update(depth, CAMERA, GroundPlane.of_mounting(optical_pose()))
+    plane = tracker.update(depth, camera, GroundPlane.of_mounting(optical_pose()))
     assert (tracker.profile is not None) == ramp
+    if ramp:
+        assert tracker.profile is not None
+        assert tracker.profile.slab_lifts(camera, 3.0, 0.03, 0.5).stride == (
+            2 if camera is CAMERA else 3
+        )
     grid = AngleGrid(-math.pi, 2.0 * math.pi / READINGS, READINGS)
     projectors = [
         ObstacleProjector(
-            CAMERA, extrinsics, grid, min_obstacle_height=0.03, max_obstacle_height=0.5,
+            camera, extrinsics, grid, min_obstacle_height=0.03, max_obstacle_height=0.5,
             range_min=0.2, range_max=3.0, drops=DropLimits(0.05, 0.02, 0.01), use_kernel=kernel,
         )
         for kernel in (True, False)

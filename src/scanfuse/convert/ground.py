@@ -63,6 +63,7 @@ if TYPE_CHECKING:
     from scanfuse.config import FusionConfig
 
     F64 = npt.NDArray[np.float64]
+    Vector = tuple[float, float, float]
 
 _UP = np.array([0.0, 0.0, 1.0])
 
@@ -129,10 +130,6 @@ class GroundPlane:
         moved = turn @ np.asarray(base_to_camera_optical.translation)
         matrix[:3, 3] = (moved[0], moved[1], self.offset)
         return Transform.from_matrix(matrix)
-
-
-def _plane(normal: F64, offset: float) -> GroundPlane:
-    return GroundPlane((float(normal[0]), float(normal[1]), float(normal[2])), float(offset))
 
 
 @dataclass(frozen=True)
@@ -285,8 +282,31 @@ PROFILE_EVIDENCE = 3
 # default depth_noise a 1:12 ramp raises it by 1 cm at 2 m, 2.3 cm at 3 m.
 SLOPE_NOISE_SIGMAS = 3.0
 # The ground under the lines of sight (`GroundProfile.ground_under`) is found for every
-# LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row, each standing for its block.
+# LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row of a LIFT_WIDTH-wide image, each standing
+# for its block; a wider image's blocks are as many pixels more (the same angle: the ground
+# under a line of sight moves by millimetres from one such block to the next).
 LIFT_STRIDE = 2
+LIFT_WIDTH = 640
+
+
+def lift_stride(width: int) -> int:
+    """Pixels a side of the blocks `GroundProfile.ground_under` finds the ground for."""
+    return max(1, LIFT_STRIDE * width // LIFT_WIDTH)
+
+
+@dataclass(frozen=True, eq=False)
+class Lifts:
+    """The ground's height above the plane under the lines of sight of an image's pixels,
+    per level (`GroundProfile.ground_under`): `coarse[level, v // stride, u // stride]` is
+    pixel (u, v)'s."""
+
+    coarse: F64  # levels x ceil(height / stride) x ceil(width / stride), read-only
+    stride: int
+
+    def per_pixel(self, height: int, width: int) -> F64:
+        """Levels x pixels (flattened), each block's value repeated over its pixels."""
+        fine = np.repeat(np.repeat(self.coarse, self.stride, axis=1), self.stride, axis=2)
+        return np.ascontiguousarray(fine[:, :height, :width]).reshape(self.coarse.shape[0], -1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -311,7 +331,7 @@ class GroundProfile:
     # ramp's noisy readings reach above it (`ground_kernel.slope_margin`); 0: no margin.
     noise_margin: float = 0.0
     # `ground_under`'s answers: the projector and the memory ask the same of one frame.
-    _lifts: dict[tuple[CameraModel, float, tuple[float, ...], int], F64] = field(
+    _lifts: dict[tuple[CameraModel, float, tuple[float, ...], int], Lifts] = field(
         default_factory=dict, repr=False
     )
 
@@ -320,37 +340,42 @@ class GroundProfile:
 
     def ground_under(
         self, camera: CameraModel, far: float, levels: tuple[float, ...], lowest: int = 0
-    ) -> F64:
-        """Per level L and pixel (flattened) the ground's height above the plane under the
-        point of the pixel's line of sight that is L above the ground (L = 0: where it meets
-        the ground), or under its point at depth `far` (levels x pixels; kept, not a copy).
-        The last `lowest` levels are measured above the lowest ground (`lows`: drops)."""
+    ) -> Lifts:
+        """Per level L and pixel the ground's height above the plane under the point of the
+        pixel's line of sight that is L above the ground (L = 0: where it meets the ground),
+        or under its point at depth `far`, found per block of `lift_stride` pixels a side.
+        The last `lowest` levels are measured above the lowest ground (`lows`: drops).
+        Kept: asked again for the same, it is not found again."""
         key = (camera, far, levels, lowest)
         if key in self._lifts:
             return self._lifts[key]
-        # On every LIFT_STRIDE-th pixel and row, then each to its block: the ground under a
-        # line of sight moves by millimetres from one pixel to the next.
+        stride = lift_stride(camera.width)
         x_n, y_n = (
-            np.ascontiguousarray(np.asarray(c)[::LIFT_STRIDE, ::LIFT_STRIDE])
+            np.ascontiguousarray(np.asarray(c)[::stride, ::stride])
             for c in camera.normalized_coordinates
         )
         forward, left = self.axes()
         coarse = np.empty((len(levels), x_n.size))
         ground_kernel.crossings(
-            x_n.ravel(), y_n.ravel(), x_n.shape[1], LIFT_STRIDE,
+            x_n.ravel(), y_n.ravel(), x_n.shape[1], stride,
             np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
             self.heights, self.heights if self.lows is None else self.lows, self.fall,
             self.bin_size, far, np.array(levels, dtype=np.float64), len(levels) - lowest,
             self.noise_margin, coarse,
         )  # fmt: skip
-        fine = coarse.reshape(len(levels), *x_n.shape)
-        fine = np.repeat(np.repeat(fine, LIFT_STRIDE, axis=1), LIFT_STRIDE, axis=2)
-        lifts = np.ascontiguousarray(fine[:, : camera.height, : camera.width]).reshape(
-            len(levels), -1
-        )
-        lifts.setflags(write=False)
+        coarse = coarse.reshape(len(levels), *x_n.shape)
+        coarse.setflags(write=False)
+        lifts = Lifts(coarse, stride)
         self._lifts[key] = lifts
         return lifts
+
+    def slab_lifts(
+        self, camera: CameraModel, range_max: float, min_height: float, max_height: float
+    ) -> Lifts:
+        """`ground_under` at the slab's top and bottom, where the line of sight meets the
+        ground (a ramp's height there) and where it meets the lowest ground the ground may
+        be (a drop lies beyond that): what the obstacle scan and the memory measure above."""
+        return self.ground_under(camera, range_max, (max_height, min_height, 0.0, 0.0), lowest=1)
 
 
 def _plane_axes(plane: GroundPlane) -> tuple[F64, F64]:
@@ -502,7 +527,7 @@ class GroundTracker:
     settings: GroundSettings
     counts: GroundCounts = field(default_factory=GroundCounts)
     _estimate: GroundPlane | None = None
-    _correction: tuple[F64, float] | None = None  # rotation vector, offset change
+    _correction: tuple[Vector, float] | None = None  # rotation vector, offset change
     _sample: GroundSample | None = None
     _sample_camera: CameraModel | None = None
     profile: GroundProfile | None = None  # the last frame's, where the ground is no plane
@@ -538,15 +563,18 @@ class GroundTracker:
             if self._correction is not None:
                 # What was learnt fades towards the prior while no floor is found: a plane
                 # held from before a ramp's foot (tilted part way up it) is not kept for good.
-                keep = 1.0 - FALLBACK_FADE
-                self._correction = (keep * self._correction[0], keep * self._correction[1])
+                turn, lift = self._correction
+                self._correction = (
+                    _blend(turn, (0.0, 0.0, 0.0), FALLBACK_FADE),
+                    (1.0 - FALLBACK_FADE) * lift,
+                )
         else:
             self.counts.estimated += 1
             self.mount.add(found, prior)
             turn, lift = _correction_between(prior, found)
             if self._correction is not None:
                 weight = self.settings.smoothing
-                turn = (1.0 - weight) * self._correction[0] + weight * turn
+                turn = _blend(self._correction[0], turn, weight)
                 lift = (1.0 - weight) * self._correction[1] + weight * lift
             self._correction = (turn, lift)
         self._estimate = prior if self._correction is None else _corrected(prior, *self._correction)
@@ -554,25 +582,42 @@ class GroundTracker:
         return self._estimate
 
 
-def _correction_between(prior: GroundPlane, plane: GroundPlane) -> tuple[F64, float]:
+def _correction_between(prior: GroundPlane, plane: GroundPlane) -> tuple[Vector, float]:
     """The rotation vector that turns the prior's normal onto the plane's (the least turn),
-    and the change of offset."""
-    axis = np.cross(prior.vector, plane.vector)
-    sine = float(np.linalg.norm(axis))
-    angle = math.atan2(sine, float(prior.vector @ plane.vector))
-    turn = axis * (angle / sine) if sine > 1e-15 else np.zeros(3)
-    return turn, plane.offset - prior.offset
+    and the change of offset.
+
+    (Plain floats, as `_corrected`: numpy's per-call cost on 3-vectors was a third of the
+    tracker's time a frame.)"""
+    (a_x, a_y, a_z), (b_x, b_y, b_z) = prior.normal, plane.normal
+    axis = (a_y * b_z - a_z * b_y, a_z * b_x - a_x * b_z, a_x * b_y - a_y * b_x)
+    sine = math.hypot(*axis)
+    angle = math.atan2(sine, a_x * b_x + a_y * b_y + a_z * b_z)
+    scale = angle / sine if sine > 1e-15 else 0.0
+    return (axis[0] * scale, axis[1] * scale, axis[2] * scale), plane.offset - prior.offset
 
 
-def _corrected(prior: GroundPlane, turn: F64, lift: float) -> GroundPlane:
+def _corrected(prior: GroundPlane, turn: Vector, lift: float) -> GroundPlane:
     """The prior turned by the rotation vector `turn` (Rodrigues) and lifted by `lift`."""
-    angle = float(np.linalg.norm(turn))
-    normal = prior.vector
+    angle = math.hypot(*turn)
+    n_x, n_y, n_z = prior.normal
     if angle > 1e-15:
-        axis = turn / angle
-        normal = (
-            normal * math.cos(angle)
-            + np.cross(axis, normal) * math.sin(angle)
-            + axis * float(axis @ normal) * (1.0 - math.cos(angle))
+        k_x, k_y, k_z = (component / angle for component in turn)
+        cosine, sine = math.cos(angle), math.sin(angle)
+        along = (k_x * n_x + k_y * n_y + k_z * n_z) * (1.0 - cosine)
+        n_x, n_y, n_z = (
+            n_x * cosine + (k_y * n_z - k_z * n_y) * sine + k_x * along,
+            n_y * cosine + (k_z * n_x - k_x * n_z) * sine + k_y * along,
+            n_z * cosine + (k_x * n_y - k_y * n_x) * sine + k_z * along,
         )
-    return _plane(normal / np.linalg.norm(normal), prior.offset + lift)
+    length = math.hypot(n_x, n_y, n_z)
+    return GroundPlane((n_x / length, n_y / length, n_z / length), prior.offset + lift)
+
+
+def _blend(old: Vector, new: Vector, weight: float) -> Vector:
+    """(1 - weight) old + weight new."""
+    keep = 1.0 - weight
+    return (
+        keep * old[0] + weight * new[0],
+        keep * old[1] + weight * new[1],
+        keep * old[2] + weight * new[2],
+    )

@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from scanfuse.compiled import compiled
 
 _LEVEL_RAY = 1e-12
@@ -37,10 +39,12 @@ def _millimetres(lo: float, hi: float) -> tuple[int, int]:
 def _tables(
     x_n: Any,
     y_n: Any,
+    width: int,
     horizontal: Any,
     normal: Any,
     offset: float,
     lifts: Any,
+    stride: int,
     limits: Any,
     drops: Any,
     metres_lo: Any,
@@ -56,56 +60,101 @@ def _tables(
     metres; lo, hi, drop_lo in uint16 millimetres and the floor in float32 millimetres.
 
     `limits` = (min_obstacle_height, max_obstacle_height, range_min, range_max); `drops` =
-    (on, min_depth, min_width, noise); `lifts` (4 x pixels, or 0 columns: none) the ground's
-    height above the plane at the slab's top, its bottom, the floor crossing and the lowest
-    ground's crossing (a drop lies beyond it).
+    (on, min_depth, min_width, noise); `lifts` (4 x block rows x block columns, or 0 rows:
+    none; `ground.Lifts.coarse`, blocks of `stride` pixels a side of an image `width` wide)
+    the ground's height above the plane at the slab's top, its bottom, the floor crossing
+    and the lowest ground's crossing (a drop lies beyond it).
     """
-    min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
-    with_lifts = lifts.shape[1] > 0
-    with_drops = drops[0] > 0.0
     size = min(x_n.size, y_n.size, metres_lo.size, metres_hi.size, metres_drop.size)
     size = min(size, metres_floor.size, millimetres_lo.size, millimetres_hi.size)
     size = min(size, millimetres_drop.size, millimetres_floor.size)
-    if with_lifts:
-        size = min(size, lifts.shape[1])
+    with_drops = drops[0] > 0.0
     if with_drops:
         size = min(size, horizontal.size)
-    for i in range(size):
-        a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
-        b_top = offset - lifts[0, i] if with_lifts else offset
-        b_bottom = offset - lifts[1, i] if with_lifts else offset
-        b_floor = offset - lifts[2, i] if with_lifts else offset
-        b_lowest = offset - lifts[3, i] if with_lifts else offset
-        if not math.isfinite(a_z):
-            lo, hi = math.inf, -math.inf
-        elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
-            z_top = (max_h - b_top) / a_z
-            z_bottom = (min_h - b_bottom) / a_z
-            lo = max(min(z_top, z_bottom), range_min)
-            hi = min(max(z_top, z_bottom), range_max)
-        else:
-            inside = min_h <= b_bottom and b_top <= max_h
-            lo = range_min if inside else math.inf
-            hi = range_max if inside else -math.inf
-        drop_lo, drop_hi, floor = math.inf, -math.inf, math.nan
-        if with_drops:
-            crossing = -b_floor / a_z if a_z != 0.0 else math.nan
-            beneath = -b_lowest / a_z if a_z != 0.0 else math.nan
-            if a_z < -_LEVEL_RAY and range_min <= crossing <= range_max:
-                margin = drops[1] / -a_z
-                if drops[2] > 0.0:
-                    margin = max(margin, drops[2] / horizontal[i])
-                margin = max(margin, DROP_NOISE_SIGMAS * drops[3] * crossing * crossing)
-                # Where the line of sight meets the lowest ground beyond the range, the
-                # ground may be there: no drop within it.
-                if math.isfinite(margin) and beneath <= range_max:
-                    drop_lo = max(beneath, crossing) + margin
-                    drop_hi, floor = math.inf, crossing
-        metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
-        lo_mm, hi_mm = millimetres(lo, hi)
-        millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm
-        millimetres_drop[i] = millimetres(drop_lo, drop_hi)[0]
-        millimetres_floor[i] = floor / _MILLIMETRE
+    min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
+    drop = (drops[0], drops[1], drops[2], drops[3])
+    rows = size // width
+    if lifts.shape[0] < 4 or lifts.shape[1] * stride < rows or lifts.shape[2] * stride < width:
+        for i in range(size):
+            a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
+            lo, hi, drop_lo, drop_hi, floor = pixel(
+                a_z, offset, offset, offset, offset, horizontal[i] if with_drops else 1.0,
+                min_h, max_h, range_min, range_max, drop,
+            )  # fmt: skip
+            metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
+            lo_mm, hi_mm = millimetres(lo, hi)
+            millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm
+            millimetres_drop[i] = millimetres(drop_lo, drop_hi)[0]
+            millimetres_floor[i] = floor / _MILLIMETRE
+        return
+    # Row by row: the row's blocks' lifts spread over its pixels first (no division per
+    # pixel, and the pixel loop stays the plain one).
+    row_lifts = np.empty((4, width))
+    for v in range(rows):
+        row = v // stride
+        for u in range(width):
+            column = u // stride
+            for level in range(4):
+                row_lifts[level, u] = offset - lifts[level, row, column]
+        first = v * width
+        for u in range(width):
+            i = first + u
+            a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
+            lo, hi, drop_lo, drop_hi, floor = pixel(
+                a_z, row_lifts[0, u], row_lifts[1, u], row_lifts[2, u], row_lifts[3, u],
+                horizontal[i] if with_drops else 1.0, min_h, max_h, range_min, range_max, drop,
+            )  # fmt: skip
+            metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
+            lo_mm, hi_mm = millimetres(lo, hi)
+            millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm
+            millimetres_drop[i] = millimetres(drop_lo, drop_hi)[0]
+            millimetres_floor[i] = floor / _MILLIMETRE
+
+
+def _pixel(
+    a_z: float,
+    b_top: float,
+    b_bottom: float,
+    b_floor: float,
+    b_lowest: float,
+    horizontal: float,
+    min_h: float,
+    max_h: float,
+    range_min: float,
+    range_max: float,
+    drops: tuple[float, float, float, float],
+) -> tuple[float, float, float, float, float]:
+    """`_tables` of one pixel: its slab interval (lo, hi), drop interval (drop_lo, drop_hi)
+    and floor crossing. Its line of sight rises `a_z` metres per metre of depth above the
+    plane and `horizontal` metres per metre of depth; b_top, b_bottom, b_floor and b_lowest
+    are the plane's offset less the lifts at the slab's top, its bottom, the floor crossing
+    and the lowest ground's crossing; `limits` and `drops` as `_tables` takes them."""
+    if not math.isfinite(a_z):
+        lo, hi = math.inf, -math.inf
+    elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
+        z_top = (max_h - b_top) / a_z
+        z_bottom = (min_h - b_bottom) / a_z
+        lo = max(min(z_top, z_bottom), range_min)
+        hi = min(max(z_top, z_bottom), range_max)
+    else:
+        inside = min_h <= b_bottom and b_top <= max_h
+        lo = range_min if inside else math.inf
+        hi = range_max if inside else -math.inf
+    drop_lo, drop_hi, floor = math.inf, -math.inf, math.nan
+    if drops[0] > 0.0:
+        crossing = -b_floor / a_z if a_z != 0.0 else math.nan
+        beneath = -b_lowest / a_z if a_z != 0.0 else math.nan
+        if a_z < -_LEVEL_RAY and range_min <= crossing <= range_max:
+            margin = drops[1] / -a_z
+            if drops[2] > 0.0:
+                margin = max(margin, drops[2] / horizontal)
+            margin = max(margin, DROP_NOISE_SIGMAS * drops[3] * crossing * crossing)
+            # Where the line of sight meets the lowest ground beyond the range, the
+            # ground may be there: no drop within it.
+            if math.isfinite(margin) and beneath <= range_max:
+                drop_lo = max(beneath, crossing) + margin
+                drop_hi, floor = math.inf, crossing
+    return lo, hi, drop_lo, drop_hi, floor
 
 
 def _extremes(
@@ -143,5 +192,6 @@ def _extremes(
 
 
 millimetres = compiled(_millimetres)
+pixel = compiled(_pixel, error_model='numpy', inline='always')
 tables = compiled(_tables, error_model='numpy')
 extremes = compiled(_extremes)

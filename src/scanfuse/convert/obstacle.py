@@ -69,7 +69,7 @@ import numpy as np
 
 from scanfuse.camera import MILLIMETRE
 from scanfuse.convert import height_kernel
-from scanfuse.convert.ground import GroundPlane, GroundProfile
+from scanfuse.convert.ground import GroundPlane, GroundProfile, Lifts
 from scanfuse.errors import InputError
 from scanfuse.motion import IDENTITY_MOTION, PlanarMotion
 from scanfuse.scan import TWO_PI, AngleGrid, Scan, to_rep117
@@ -778,8 +778,7 @@ class ObstacleProjector:
     ) -> tuple[F64, F64, F64, F64, F64]:
         """Per pixel of `part` the slab interval [lo, hi], the drop interval [drop_lo,
         drop_hi] and the floor crossing depth, for heights above `ground`; with `lifts`
-        (4 x pixels, `GroundProfile.ground_under` at max_obstacle_height,
-        min_obstacle_height, 0 and 0 on the lowest ground) above the ground under the
+        (4 x pixels of `part`: `GroundProfile.slab_lifts` per pixel) above the ground under the
         points where the line of sight is at the slab's top, at its bottom, meets the ground
         (a ramp's height there) and meets the lowest ground the ground may be (a drop lies
         beyond that)."""
@@ -838,29 +837,32 @@ class ObstacleProjector:
             for tables in (self._millimetres, self._metres)
         }
 
-    def _numpy_heights(self, ground: GroundPlane, lifts: F64 | None) -> None:
+    def _numpy_heights(self, ground: GroundPlane, lifts: Lifts | None) -> None:
         """The height tables and the blocks' extremes for `ground` (and `lifts`), in numpy
         (the reference of `_compiled_heights`, and the way without numba)."""
         x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
         width = self.camera.width
+        per_pixel = None if lifts is None else lifts.per_pixel(self.camera.height, width)
         for top in range(0, self.camera.height, self._band):
             rows = min(self._band, self.camera.height - top)
             part = slice(top * width, (top + rows) * width)
             x_n = x_table[part].astype(np.float64)
             y_n = y_table[part].astype(np.float64)
             intervals = self._height_intervals(
-                part, x_n, y_n, ground, None if lifts is None else lifts[:, part]
+                part, x_n, y_n, ground, None if per_pixel is None else per_pixel[:, part]
             )
             self._store_heights(part, *intervals)
         self._block_extremes = self._extremes()
 
-    def _compiled_heights(self, ground: GroundPlane, lifts: F64 | None) -> None:
+    def _compiled_heights(self, ground: GroundPlane, lifts: Lifts | None) -> None:
         """`_numpy_heights` in one compiled pass (`height_kernel`)."""
         x_table, y_table = (np.asarray(c).ravel() for c in self.camera.normalized_coordinates)
         drops = self.drops
         height_kernel.tables(
-            x_table, y_table, self._drop_horizontal, np.array(ground.normal), ground.offset,
-            np.empty((4, 0)) if lifts is None else lifts,
+            x_table, y_table, self.camera.width, self._drop_horizontal,
+            np.array(ground.normal), ground.offset,
+            np.empty((4, 0, 0)) if lifts is None else lifts.coarse,
+            1 if lifts is None else lifts.stride,
             np.array([self.min_obstacle_height, self.max_obstacle_height, self.range_min,
                       self.range_max]),
             np.zeros(4) if drops is None else np.array(
@@ -893,13 +895,12 @@ class ObstacleProjector:
             and ground.height_change(self.ground, self.range_max) <= GROUND_TOLERANCE
         ):
             return False
-        # The slab's top and bottom, where the line of sight meets the ground, and where it
-        # meets the lowest ground (a drop lies below that: `GroundProfile.lows`).
-        levels = (self.max_obstacle_height, self.min_obstacle_height, 0.0, 0.0)
         lifts = (
             None
             if profile is None
-            else profile.ground_under(self.camera, self.range_max, levels, lowest=1)
+            else profile.slab_lifts(
+                self.camera, self.range_max, self.min_obstacle_height, self.max_obstacle_height
+            )
         )
         if self._kernel is not None:
             self._compiled_heights(ground, lifts)

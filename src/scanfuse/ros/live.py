@@ -233,8 +233,12 @@ class LiveFusion:
         pipeline.fuse(
             scan, np.full((12, 16), 1.0, np.float32), camera, ground=tilted, profile=profile
         )
-        levels = (self.config.max_obstacle_height, self.config.min_obstacle_height, 0.0)
-        lifts = profile.ground_under(camera, self.config.range_max, levels)
+        lifts = profile.slab_lifts(
+            camera,
+            self.config.range_max,
+            self.config.min_obstacle_height,
+            self.config.max_obstacle_height,
+        )
         memory = ObstacleMemory(MemorySettings(2.0, 1.0, 0.05))
         for depth in (np.full((12, 16), 1000, np.uint16), np.full((12, 16), 1.0, np.float32)):
             slab = (self.config.min_obstacle_height, self.config.max_obstacle_height)
