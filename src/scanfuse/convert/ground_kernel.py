@@ -533,6 +533,7 @@ def _crossings(
         along = forward[0] * x_n[i] + forward[1] * y_n[i] + forward[2]
         across = left[0] * x_n[i] + left[1] * y_n[i] + left[2]
         run = math.sqrt(along * along + across * across)  # horizontal metres per metre of depth
+        knot_depth = bin_size / run if run > 0.0 else far  # metres of depth from knot to knot
         # One walk along the knots serves every level: each takes the first knot where the
         # line of sight is no more than it above the ground (levels descend: so do they).
         count = min(levels.size, lifts.shape[0])
@@ -543,8 +544,7 @@ def _crossings(
         g, g_low = profile[c, 0], low[c, 0]
         for b in range(bins + 1):
             # Knots at bin centres, and the far end.
-            z = (b + 0.5) * bin_size / run if b < bins and run > 0.0 else far
-            z = min(z, far)
+            z = min((b + 0.5) * knot_depth, far) if b < bins else far
             knot, before = min(b, bins - 1), max(min(b - 1, bins - 1), 0)
             g, g_low = profile[c, knot], low[c, knot]
             if b == bins:
