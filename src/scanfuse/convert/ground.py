@@ -282,16 +282,17 @@ PROFILE_EVIDENCE = 3
 # default depth_noise a 1:12 ramp raises it by 1 cm at 2 m, 2.3 cm at 3 m.
 SLOPE_NOISE_SIGMAS = 3.0
 # The ground under the lines of sight (`GroundProfile.ground_under`) is found for every
-# LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row of a LIFT_WIDTH-wide image, each standing
-# for its block; a wider image's blocks are as many pixels more (the same angle: the ground
-# under a line of sight moves by millimetres from one such block to the next).
+# LIFT_STRIDE-th pixel of every LIFT_STRIDE-th row, each standing for its block; an image
+# wider than LIFT_WIDTH has blocks as many pixels more (the same angle: the ground under a
+# line of sight moves by millimetres from one such block to the next). A narrower one keeps
+# LIFT_STRIDE: finer blocks would cost more without telling more than the profile's bins.
 LIFT_STRIDE = 2
 LIFT_WIDTH = 640
 
 
 def lift_stride(width: int) -> int:
     """Pixels a side of the blocks `GroundProfile.ground_under` finds the ground for."""
-    return max(1, LIFT_STRIDE * width // LIFT_WIDTH)
+    return max(LIFT_STRIDE, LIFT_STRIDE * width // LIFT_WIDTH)
 
 
 @dataclass(frozen=True, eq=False)
