@@ -74,28 +74,18 @@ def _tables(
     min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
     drop = (drops[0], drops[1], drops[2], drops[3])
     rows = size // width
-    if lifts.shape[0] < 4 or lifts.shape[1] * stride < rows or lifts.shape[2] * stride < width:
-        for i in range(size):
-            a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
-            lo, hi, drop_lo, drop_hi, floor = pixel(
-                a_z, offset, offset, offset, offset, horizontal[i] if with_drops else 1.0,
-                min_h, max_h, range_min, range_max, drop,
-            )  # fmt: skip
-            metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
-            lo_mm, hi_mm = millimetres(lo, hi)
-            millimetres_lo[i], millimetres_hi[i] = lo_mm, hi_mm
-            millimetres_drop[i] = millimetres(drop_lo, drop_hi)[0]
-            millimetres_floor[i] = floor / _MILLIMETRE
-        return
+    lifted = lifts.shape[0] >= 4 and lifts.shape[1] * stride >= rows
+    lifted = lifted and lifts.shape[2] * stride >= width
     # Row by row: the row's blocks' lifts spread over its pixels first (no division per
-    # pixel, and the pixel loop stays the plain one).
-    row_lifts = np.empty((4, width))
+    # pixel); without lifts, the plane's offset throughout.
+    row_lifts = np.full((4, width), offset)
     for v in range(rows):
-        row = v // stride
-        for u in range(width):
-            column = u // stride
-            for level in range(4):
-                row_lifts[level, u] = offset - lifts[level, row, column]
+        if lifted:
+            row = v // stride
+            for u in range(width):
+                column = u // stride
+                for level in range(4):
+                    row_lifts[level, u] = offset - lifts[level, row, column]
         first = v * width
         for u in range(width):
             i = first + u
@@ -128,7 +118,8 @@ def _pixel(
     and floor crossing. Its line of sight rises `a_z` metres per metre of depth above the
     plane and `horizontal` metres per metre of depth; b_top, b_bottom, b_floor and b_lowest
     are the plane's offset less the lifts at the slab's top, its bottom, the floor crossing
-    and the lowest ground's crossing; `limits` and `drops` as `_tables` takes them."""
+    and the lowest ground's crossing; min_h to range_max are `_tables`'s `limits`, `drops`
+    its `drops`."""
     if not math.isfinite(a_z):
         lo, hi = math.inf, -math.inf
     elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
