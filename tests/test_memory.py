@@ -281,8 +281,7 @@ def test_a_realignment_moves_each_point_by_the_share_of_the_uncorrected_time_it_
     move = PlanarPose(0.2, 0.0, math.pi / 2)
     assert memory.realign(move, 100, 1100) == 2
     x, y = memory.points()
-    order = np.argsort(x)
-    moved = sorted(zip(x[order].round(6), y[order].round(6)))
+    moved = sorted(zip(x.round(6), y.round(6), strict=True))
     # (1, 0.5) stays; (0, 0.5) goes a quarter of the way to the move's (-0.3, 0); (-1, 0.5)
     # all the way to (0.2 - 0.5, -1).
     assert moved == sorted([(1.0, 0.5), (-0.075, 0.375), (-0.3, -1.0)])
@@ -338,12 +337,21 @@ OVER_COUNT = 1.03  # wheel slip: odometry reports 3 % more turn than the robot m
 class DriftingRobot(Robot):
     """Turns in place while its wheel odometry over-counts the turn; its LiDAR (10 Hz, the
     robot's true heading) sees the room's walls, 0.3 m up, over the box. `turning_pitch`:
-    what an IMU says the base is pitched by while it turns (0: no IMU)."""
+    what an IMU says the base is pitched by while it turns (0: no IMU); its heading is the
+    true one unless `imu_heading` is false (it says 0 throughout)."""
 
-    def __init__(self, stream: FusionStream, world: list[Box], turning_pitch: float = 0.0):
+    def __init__(
+        self,
+        stream: FusionStream,
+        world: list[Box],
+        turning_pitch: float = 0.0,
+        *,
+        imu_heading: bool = True,
+    ):
         super().__init__(stream, world)
         self.true_yaw = 0.0
         self.turning_pitch = turning_pitch
+        self.imu_heading = imu_heading
 
     def room_scan(self) -> Scan:
         empty = lidar(self.now)
@@ -358,7 +366,8 @@ class DriftingRobot(Robot):
             self.pose = PlanarPose(0.0, 0.0, self.true_yaw * OVER_COUNT)
             self.stream.add_odometry(self.now, self.pose)
             if self.turning_pitch:
-                tilt = Transform.from_rpy(0.0, self.turning_pitch, 0.0)
+                heading = self.true_yaw if self.imu_heading else 0.0
+                tilt = Transform.from_rpy(0.0, self.turning_pitch, heading)
                 self.stream.add_imu(self.now, tilt.rotation, 'base_link')
             if k % 5 == 0:  # the camera looks away from the box: only the LiDAR matters
                 self.stream.add_scan(self.room_scan(), None, self.now + 1_000_000)
@@ -404,31 +413,38 @@ def test_scan_matching_keeps_the_box_at_its_true_bearing_when_odometry_over_coun
     assert stream.counts.drift_refused == 0
 
 
-def test_a_lidar_tilted_on_a_ramp_is_not_matched_and_the_memory_follows_odometry():
+@pytest.mark.parametrize('imu_heading', [True, False])
+def test_a_lidar_tilted_on_a_ramp_is_not_matched_and_the_memory_turns_as_the_imu_says(
+    imu_heading,
+):
     # The same turn, the IMU saying the base is pitched as on a 1:8 ramp (7.1 degrees): the
-    # LiDAR's plane would cut the floor and the walls at other heights than level.
+    # LiDAR's plane would cut the floor and the walls at other heights than level. The
+    # IMU's heading turns the memory; an IMU whose heading stands still while odometry
+    # turns 0.16 rad a scan is not believed, and the memory follows odometry.
     stream = FusionStream(config())
-    robot = DriftingRobot(stream, [BOX], turning_pitch=math.atan(1 / 8))
+    robot = DriftingRobot(stream, [BOX], turning_pitch=math.atan(1 / 8), imu_heading=imu_heading)
     robot.scan()
     robot.turn_to(math.pi, 2.0)
     behind = robot.scan(camera=False)
     assert stream.counts.drift_matched == 0
     assert stream.drift.refused[Refusal.TILTED] >= 20  # every scan of the turn
     offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
-    assert offset == pytest.approx(-0.03 * math.pi, abs=2 * 2 * math.pi / READINGS)
+    expected = 0.0 if imu_heading else -0.03 * math.pi
+    assert offset == pytest.approx(expected, abs=2 * 2 * math.pi / READINGS)
 
 
 LEFT_BOX = Box(-0.1, 0.1, 1.5, 1.7, 0.2)  # 1.5 m to the left of the robot's start
 
 
 def test_a_box_first_seen_on_a_ramp_stands_at_its_true_bearing_once_the_robot_is_level_again():
-    # A quarter turn pitched 7.1 degrees nose-down (an IMU says so): not matched, so the
-    # memory places what the camera sees meanwhile with odometry's 3 % over-count. Level
+    # A quarter turn pitched 7.1 degrees nose-down (an IMU says so, without a heading the
+    # stream can use): not matched, so the memory places what the camera sees meanwhile
+    # with odometry's 3 % over-count. Level
     # again, the scan is matched against the one before the ramp: the correction takes the
     # over-count out, and the box seen on the ramp moves with it.
     pitch = math.atan(1 / 8)
     stream = FusionStream(config(ground_estimate=False))
-    robot = DriftingRobot(stream, [LEFT_BOX], turning_pitch=pitch)
+    robot = DriftingRobot(stream, [LEFT_BOX], turning_pitch=pitch, imu_heading=False)
     robot.scan(camera=False)  # level, facing away from the box: the reference
     robot.turn_to(math.pi / 2, 1.0)
     # Still pitched (the IMU's last word): the camera, tilted with the body, sees the box.
