@@ -272,32 +272,6 @@ def test_the_store_is_bounded_by_its_grid_whatever_is_added():
     assert np.all(np.hypot(x, y) <= 1.0)
 
 
-def test_a_realignment_moves_each_point_by_the_share_of_the_uncorrected_time_it_was_seen_at():
-    memory = ObstacleMemory(MemorySettings(radius=2.0, cell=0.025))
-    # Seen before the uncorrected stretch, a quarter into it, and at its end (stamps in ns).
-    for stamp, x in ((0, 1.0), (250, 0.0), (1000, -1.0)):
-        memory.add(np.array([x]), np.array([0.5]), 100 + stamp, robot=(0.0, 0.0))
-    # The match at 1100 ns found the frame a quarter turn and 0.2 m in x off since 100 ns.
-    move = PlanarPose(0.2, 0.0, math.pi / 2)
-    assert memory.realign(move, 100, 1100) == 2
-    x, y = memory.points()
-    moved = sorted(zip(x.round(6), y.round(6), strict=True))
-    # (1, 0.5) stays; (0, 0.5) goes a quarter of the way to the move's (-0.3, 0); (-1, 0.5)
-    # all the way to (0.2 - 0.5, -1).
-    assert moved == sorted([(1.0, 0.5), (-0.075, 0.375), (-0.3, -1.0)])
-
-
-def test_a_realigned_point_landing_in_an_occupied_cell_keeps_the_newest():
-    memory = ObstacleMemory(MemorySettings(radius=2.0, cell=0.1))
-    memory.add(np.array([0.55]), np.array([0.05]), 50, robot=(0.0, 0.0))  # before: stays
-    memory.add(np.array([0.46]), np.array([0.05]), 600, robot=(0.0, 0.0))  # half: + 0.1 m
-    assert len(memory) == 2
-    assert memory.realign(PlanarPose(0.2, 0.0, 0.0), 100, 1100) == 1
-    assert len(memory) == 1  # both in the cell [0.5, 0.6): the one seen at 600 ns
-    x, _ = memory.points()
-    assert x[0] == pytest.approx(0.56)
-
-
 def test_nan_points_are_not_remembered():
     memory = ObstacleMemory()
     memory.add(np.array([np.nan, 1.0]), np.array([0.0, np.inf]), 0, robot=(0.0, 0.0))
@@ -431,40 +405,6 @@ def test_a_lidar_tilted_on_a_ramp_is_not_matched_and_the_memory_turns_as_the_imu
     offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
     expected = 0.0 if imu_heading else -0.03 * math.pi
     assert offset == pytest.approx(expected, abs=2 * 2 * math.pi / READINGS)
-
-
-LEFT_BOX = Box(-0.1, 0.1, 1.5, 1.7, 0.2)  # 1.5 m to the left of the robot's start
-
-
-def test_a_box_first_seen_on_a_ramp_stands_at_its_true_bearing_once_the_robot_is_level_again():
-    # A quarter turn pitched 7.1 degrees nose-down (an IMU says so, without a heading the
-    # stream can use): not matched, so the memory places what the camera sees meanwhile
-    # with odometry's 3 % over-count. Level
-    # again, the scan is matched against the one before the ramp: the correction takes the
-    # over-count out, and the box seen on the ramp moves with it.
-    pitch = math.atan(1 / 8)
-    stream = FusionStream(config(ground_estimate=False))
-    robot = DriftingRobot(stream, [LEFT_BOX], turning_pitch=pitch, imu_heading=False)
-    robot.scan(camera=False)  # level, facing away from the box: the reference
-    robot.turn_to(math.pi / 2, 1.0)
-    # Still pitched (the IMU's last word): the camera, tilted with the body, sees the box.
-    robot.now += NS // 50
-    stream.add_odometry(robot.now, robot.pose)
-    body = Transform.from_rpy(0.0, 0.0, robot.true_yaw) @ Transform.from_rpy(0.0, pitch, 0.0)
-    view = body @ camera_in_world(0.0, 0.0, 0.0, height=HEIGHT, pitch=PITCH)
-    stream.add_depth(robot.now - 20_000_000, depth_image(CAMERA, view, [LEFT_BOX]), robot.now)
-    (seen,) = stream.add_scan(robot.room_scan(), None, robot.now + 1_000_000)
-    # In the pitched base's plane the face's points 0.3 m up lie 1.5 cos - 0.3 sin = 1.45 m off.
-    assert reading_at(seen.fused, 0.0)[0] == pytest.approx(1.47, abs=0.03)
-    assert stream.counts.drift_matched == 0
-    stream.add_imu(robot.now + 2_000_000, Transform().rotation, 'base_link')
-    level = robot.scan(camera=False)
-    assert stream.counts.drift_matched == 1
-    # Odometry's heading is 1.03 pi/2: without the realignment the box would be drawn
-    # 0.015 pi (5.4 slots) to the right of straight ahead.
-    offset = math.remainder(remembered_bearing(level.memory_scan), 2 * math.pi)
-    assert abs(offset) <= 2 * math.pi / READINGS
-    assert reading_at(level.fused, 0.0)[0] == pytest.approx(1.47, abs=0.03)
 
 
 def test_without_scan_matching_the_box_is_off_by_the_odometry_s_over_count():

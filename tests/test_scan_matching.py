@@ -56,10 +56,10 @@ def lidar_scan(ranges: np.ndarray, stamp_ns: int = 0) -> Scan:
     )
 
 
-def room(pose: PlanarPose, noise: float = 0.0, seed: int = 0, stamp_ns: int = 0) -> Scan:
+def room(pose: PlanarPose, noise: float = 0.0, seed: int = 0) -> Scan:
     ranges = square_room_ranges((pose.x, pose.y), pose.yaw, ANGLES, half=HALF)
     ranges = ranges + np.random.default_rng(seed).normal(0.0, noise, READINGS)
-    return lidar_scan(ranges, stamp_ns)
+    return lidar_scan(ranges)
 
 
 def relative(earlier: PlanarPose, later: PlanarPose) -> RelativePose:
@@ -306,34 +306,26 @@ def test_while_tilted_an_imu_s_heading_turns_the_correction_and_odometry_moves_i
     assert drift.correction == before
 
 
-def test_a_tilted_scan_is_refused_and_the_next_level_scan_matches_the_reference_before_it():
+def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference():
     drift = DriftCorrection()
     mount = Transform()
     drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)
     # Odometry over-counts a turn of 0.2 rad while a 1:8 ramp pitches the plane 7.1 degrees.
     true, odometry = PlanarPose(0.0, 0.0, 0.2), PlanarPose(0.0, 0.0, 0.2 * OVER_COUNT)
-    tilted = drift.update(
-        room(base_in_room(true), stamp_ns=10**8), odometry, mount, tilt=math.atan(1 / 8)
-    )
+    tilted = drift.update(room(base_in_room(true)), odometry, mount, tilt=math.atan(1 / 8))
     assert tilted is not None
     assert tilted.refused is Refusal.TILTED
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)  # odometry alone meanwhile
     assert drift.refused == {Refusal.TILTED: 1}
-    assert drift.jump is None
-    # Level again (up to `max_tilt`), on: matched against the reference from before the
-    # tilt, so the over-count of the whole turn comes out (the true heading, 0.3 rad).
+    # Level again (up to `max_tilt`): the first scan is a new reference, the next matches it.
     level = drift.settings.max_tilt
-    true, odometry = PlanarPose(0.0, 0.0, 0.3), PlanarPose(0.0, 0.0, 0.3 * OVER_COUNT)
-    matched = drift.update(
-        room(base_in_room(true), stamp_ns=2 * 10**8), odometry, mount, tilt=level
-    )
+    assert drift.update(room(base_in_room(true)), odometry, mount, tilt=level) is None
+    true, odometry = PlanarPose(0.0, 0.0, 0.4), PlanarPose(0.0, 0.0, 0.4 * OVER_COUNT)
+    matched = drift.update(room(base_in_room(true)), odometry, mount, tilt=level)
     assert matched is not None
     assert matched.accepted
-    assert drift.corrected(odometry).yaw == pytest.approx(0.3, abs=2e-3)
-    # The jump: all of it since the reference's stamp, for the memory to take out.
-    assert drift.jump is not None
-    assert drift.jump.move.yaw == pytest.approx(0.3 * (1 - OVER_COUNT), abs=2e-3)
-    assert (drift.jump.since_ns, drift.jump.until_ns, drift.jump.unmatched) == (0, 2 * 10**8, 1)
+    # The correction takes out the over-count since the new reference, not the one before.
+    assert drift.corrected(odometry).yaw == pytest.approx(0.4 + 0.2 * (OVER_COUNT - 1), abs=2e-3)
 
 
 def test_an_upside_down_lidar_s_matches_are_turned_back_into_the_base_s_turn():

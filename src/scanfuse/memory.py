@@ -300,41 +300,6 @@ class ObstacleMemory:
         used = self._key >= 0
         return self._x[used].copy(), self._y[used].copy()
 
-    def realign(self, move: PlanarPose, since_ns: int, until_ns: int) -> int:
-        """The frame the points were placed in was wrong by a growing share of `move`
-        from `since_ns` to `until_ns` (odometry uncorrected meanwhile, `scan_matching.Jump`):
-        move each point seen in between by the share its stamp says (linear in time, all
-        of it at `until_ns`), so that it stands where the corrected frame places what the
-        camera saw. A moved point takes its new cell, the newest of those landing in one
-        staying. Returns how many moved."""
-        used = np.flatnonzero(self._key >= 0)
-        # Stamps on the memory's clock (`stand_still`): the time the robot stood still
-        # before `since_ns` is counted as if it came after (a small overestimate of the share).
-        since, until = since_ns - self._still_ns, until_ns - self._still_ns
-        share = (self._seen_ns[used] - since) / max(until - since, 1)
-        moving = share > 0.0
-        index = used[moving]
-        if not index.size:
-            return 0
-        share = np.minimum(share[moving], 1.0)
-        x0, y0 = self._x[index], self._y[index]
-        cosine, sine = math.cos(move.yaw), math.sin(move.yaw)
-        x = x0 + share * (move.x + cosine * x0 - sine * y0 - x0)
-        y = y0 + share * (move.y + sine * x0 + cosine * y0 - y0)
-        seen = self._seen_ns[index]
-        self._key[index] = -1
-        # Newest last, each cell's last writer kept (unique of the reversed order).
-        order = np.argsort(seen, kind='stable')[::-1]
-        slots, key = self._cells(x[order], y[order])
-        slots, first = np.unique(slots, return_index=True)
-        newer = (self._key[slots] < 0) | (self._seen_ns[slots] <= seen[order][first])
-        take = order[first][newer]
-        slots = slots[newer]
-        self._x[slots], self._y[slots] = x[take], y[take]
-        self._seen_ns[slots] = seen[take]
-        self._key[slots] = key[first][newer]
-        return int(index.size)
-
     # ------------------------------------------------------------ adding and forgetting
 
     def _cells(self, x: F64, y: F64) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:

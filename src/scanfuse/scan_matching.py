@@ -457,20 +457,6 @@ RECENT_MATCHES = 16
 MAX_HEADING_DISAGREEMENT = 0.1
 
 
-@dataclass(frozen=True)
-class Jump:
-    """How an accepted match moved the correction: `move` takes a point placed with the
-    correction before it to where the correction after it places it (C_after C_before^-1).
-    Odometry went uncorrected from `since_ns` (the match before, or the first reference) to
-    `until_ns` (this match): a point placed at `since_ns` was placed right, one placed at
-    `until_ns` is off by all of `move`."""
-
-    move: PlanarPose
-    since_ns: int
-    until_ns: int
-    unmatched: int  # scans between the two not matched (tilted or refused)
-
-
 @dataclass
 class _Keyframe:
     ref: Reference
@@ -489,14 +475,12 @@ class DriftCorrection:
     odometry's move and C stays where it was. A refused match keeps C and starts a new
     reference at the current scan.
 
-    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is not matched: C and
-    the reference are kept, and the next level scan is matched against the reference from
-    before the tilt, so that what odometry slipped meanwhile (up a ramp, braking) is taken
-    out again. Meanwhile, with an IMU's heading, the turn between two scans is the IMU's (odometry's
-    wheels slip on a ramp and turn it by degrees), the distance odometry's. Tilted, the plane of
-    a LiDAR 0.3 m
-    up meets the floor 8.6 m off at 2 degrees and 2.4 m off at 7 (a 1:8 ramp), and it
-    slices the walls at other heights than the reference did; on the simulator's ramps,
+    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is not matched, and the
+    next level scan starts a new reference. Meanwhile C is kept, or, with an IMU's heading,
+    moved so that the corrected pose takes odometry's distance and the IMU's turn between
+    two scans (wheels slip on a ramp and turn odometry by degrees). Tilted, the plane of a
+    LiDAR 0.3 m up meets the floor 8.6 m off at 2 degrees and 2.4 m off at 7 (a 1:8 ramp),
+    and it slices the walls at other heights than the reference did; on the simulator's ramps,
     matching such scans moved the corrected pose 0.13 m along the ramp's corridor within
     one turn at its crest.
     """
@@ -507,11 +491,8 @@ class DriftCorrection:
         self.matched = 0
         self.refused: dict[Refusal, int] = {}
         self.last: Match | None = None
-        self.jump: Jump | None = None  # the last `update`'s, None when it did not match
         self._keyframe: _Keyframe | None = None
         self._recent: deque[float] = deque(maxlen=RECENT_MATCHES)  # residuals of late matches
-        self._settled_ns: int | None = None  # the stamp C was last set for
-        self._unmatched = 0  # scans since then not matched
         self._previous: tuple[PlanarPose, float | None] | None = None  # odometry, heading
 
     def reset(self) -> None:
@@ -519,10 +500,7 @@ class DriftCorrection:
         self.correction = PlanarPose(0.0, 0.0, 0.0)
         self._keyframe = None
         self.last = None
-        self.jump = None
         self._recent.clear()
-        self._settled_ns = None
-        self._unmatched = 0
         self._previous = None
 
     def corrected(self, pose: PlanarPose) -> PlanarPose:
@@ -558,11 +536,8 @@ class DriftCorrection:
         tilt: float,
         heading: float | None,
     ) -> Match | None:
-        self.jump = None
-        settled = scan.stamp_ns if self._settled_ns is None else self._settled_ns
-        self._settled_ns = settled
         if not tilt <= self.settings.max_tilt:
-            self._unmatched += 1
+            self._keyframe = None
             self._turn_by_heading(base, heading)
             self.refused[Refusal.TILTED] = self.refused.get(Refusal.TILTED, 0) + 1
             self.last = Match(RelativePose(0.0, 0.0, 0.0), Refusal.TILTED, 0, math.nan, 0)
@@ -570,7 +545,6 @@ class DriftCorrection:
         key = self._keyframe
         if key is None or key.frame_id != scan.frame_id:
             self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, self.corrected(base))
-            self._settled_ns, self._unmatched = scan.stamp_ns, 0
             return None
         sensor = base_to_laser.matrix
         to_sensor = np.linalg.inv(sensor)
@@ -584,15 +558,12 @@ class DriftCorrection:
         result = self._screened(match(key.ref, scan, prediction, self.settings), prediction)
         self.last = result
         if result.refused is Refusal.DISTORTED:
-            self._unmatched += 1
             self.refused[result.refused] = self.refused.get(result.refused, 0) + 1
             return result  # C and the reference stay: the next scan matches against it
         if not result.accepted:
             assert result.refused is not None
             self.refused[result.refused] = self.refused.get(result.refused, 0) + 1
-            # The drift before this scan stays in C for good: the next match measures from here.
             self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, self.corrected(base))
-            self._settled_ns, self._unmatched = scan.stamp_ns, 0
             return result
         self.matched += 1
         pose = result.pose
@@ -604,11 +575,7 @@ class DriftCorrection:
             float(moved[0, 3]), float(moved[1, 3]), math.atan2(moved[1, 0], moved[0, 0])
         )
         corrected = key.corrected.compose(true_move)
-        before, self.correction = self.correction, corrected.compose(base.inverse())
-        self.jump = Jump(
-            self.correction.compose(before.inverse()), settled, scan.stamp_ns, self._unmatched
-        )
-        self._settled_ns, self._unmatched = scan.stamp_ns, 0
+        self.correction = corrected.compose(base.inverse())
         if (
             abs(true_move.yaw) > KEYFRAME_TURN
             or math.hypot(true_move.x, true_move.y) > KEYFRAME_SHIFT

@@ -82,7 +82,7 @@ from scanfuse.output import (
 )
 from scanfuse.pipeline import StageTimings
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
-from scanfuse.scan_matching import DriftCorrection, Jump
+from scanfuse.scan_matching import DriftCorrection
 from scanfuse.trail import GroundTrail
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
@@ -1303,27 +1303,7 @@ class FusionStream(Generic[T]):
             )
         elif result is not None:
             self.counts.drift_matched += 1
-        jump = self.drift.jump
-        if (
-            jump is not None
-            and jump.unmatched
-            and self.memory is not None
-            and self._moves_memory(jump, base)
-        ):
-            # A match after scans that were not matched (tilted, braking): the points placed
-            # meanwhile carry the drift this match took out. (Between matched scans the
-            # correction's step is the match's noise, not drift: nothing moves.)
-            self.memory.realign(jump.move, jump.since_ns, jump.until_ns)
         return self.drift.corrected(base)
-
-    def _moves_memory(self, jump: Jump, base: PlanarPose) -> bool:
-        """Whether `jump` moves a remembered point near the robot by a quarter cell or more."""
-        assert self.memory is not None
-        settings = self.memory.settings
-        robot = self.drift.corrected(base)
-        moved = jump.move.compose(robot)
-        shift = math.hypot(moved.x - robot.x, moved.y - robot.y)
-        return shift + settings.radius * abs(jump.move.yaw) >= 0.25 * settings.cell
 
     def _plane_tilt(self, stamp_ns: int, base_to_laser: Transform) -> float:
         """Radians between the plane of a LiDAR mounted at `base_to_laser` and level, by
