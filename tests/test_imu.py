@@ -155,25 +155,6 @@ def test_the_tilt_at_a_frame_is_the_mean_of_the_samples_around_it():
     assert history.tilt_at(NS + 200_000_000) is None  # 150 ms past the last sample
 
 
-def test_the_base_s_heading_comes_from_the_imu_s_orientation_and_mounting():
-    from scanfuse.imu import ImuHistory, base_attitude
-
-    # An IMU mounted turned 90 degrees left on the base, upside down (rolled 180 degrees);
-    # the base heads 30 degrees left of the IMU's world x, pitched 2 degrees.
-    base_to_imu = Transform.from_rpy(math.pi, 0.0, math.pi / 2)
-    world_to_base = Transform.from_rpy(0.0, math.radians(2.0), math.radians(30.0))
-    orientation = (world_to_base @ base_to_imu).rotation
-    tilt, heading = base_attitude(orientation, base_to_imu)
-    assert math.degrees(heading) == pytest.approx(30.0, abs=1e-9)
-    assert math.degrees(tilt.rpy()[1]) == pytest.approx(2.0, abs=1e-9)
-    history = ImuHistory()
-    history.add(NS, tilt, heading)
-    history.add(NS + IMU_PERIOD_NS, tilt)  # a sample without a heading
-    assert history.heading_at(NS + 1_000_000) == pytest.approx(heading)  # the nearest
-    assert history.heading_at(NS + IMU_PERIOD_NS) is None
-    assert history.heading_at(NS - 100_000_000) is None  # 100 ms before any sample
-
-
 @pytest.mark.parametrize('grade', [12.0, 8.0])
 def test_a_robot_standing_on_a_ramp_reports_the_box_on_it_and_not_the_ramp(grade):
     # The IMU gives the body's tilt against gravity: nose-up by the ramp's slope. The floor

@@ -278,34 +278,6 @@ def test_a_refused_match_keeps_the_correction_and_starts_a_new_reference():
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)
 
 
-def test_while_tilted_an_imu_s_heading_turns_the_correction_and_odometry_moves_it():
-    drift = DriftCorrection()
-    mount = Transform()
-    ramp = math.atan(1 / 8)
-    drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount, heading=1.0)
-    # Up a ramp, three steps of 0.1 m, turning 0.1 rad: odometry over-counts the turn and
-    # its path bends with it; the IMU's heading (its zero anywhere: 1 rad) has it right.
-    odometry = PlanarPose(0.0, 0.0, 0.0)
-    x = y = 0.0  # the same steps along the true headings
-    for k in (1, 2, 3):
-        true_yaw = 0.1 * (k - 1) / 3
-        x, y = x + 0.1 * math.cos(true_yaw), y + 0.1 * math.sin(true_yaw)
-        odometry = PlanarPose(
-            odometry.x + 0.1 * math.cos(odometry.yaw),
-            odometry.y + 0.1 * math.sin(odometry.yaw),
-            0.1 * k / 3 * OVER_COUNT,
-        )
-        drift.update(room(START), odometry, mount, tilt=ramp, heading=1.0 + 0.1 * k / 3)
-        corrected = drift.corrected(odometry)
-        assert corrected.yaw == pytest.approx(0.1 * k / 3, abs=1e-9)
-        assert (corrected.x, corrected.y) == pytest.approx((x, y), abs=1e-9)
-    # A heading that jumps (0.5 rad against odometry's 0.01) is not believed: C stays.
-    before = drift.correction
-    odometry = PlanarPose(odometry.x, odometry.y, 0.11 * OVER_COUNT)
-    drift.update(room(START), odometry, mount, tilt=ramp, heading=1.6)
-    assert drift.correction == before
-
-
 def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference():
     drift = DriftCorrection()
     mount = Transform()

@@ -388,8 +388,7 @@ class FusionConfig(BaseModel):
         '',
         description=(
             "sensor_msgs/Imu topic: the base's pitch and roll at each depth frame tilt the "
-            "mounting's floor (the ground estimate's prior, or the floor with it off); its "
-            "heading turns the memory while the LiDAR's scans are too tilted to match; "
+            "mounting's floor (the ground estimate's prior, or the floor with it off); "
             'empty: none (scanfuse bag takes the one Imu topic of a bag that holds one)'
         ),
     )

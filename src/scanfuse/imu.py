@@ -4,9 +4,7 @@ A robot rocks faster than a camera's frames (braking, a caster over a sill); an 
 orientation (sensor_msgs/Imu, REP-145: the IMU frame's attitude in a frame whose z is up
 against gravity) says how the base is tilted at a depth frame's stamp. The floor is then
 expected where the mounting, so tilted, puts it: the ground estimate's prior, or the
-ground itself with the estimate off. Its heading's changes stand in for odometry's turn
-only where the LiDAR's scans cannot be matched (tilted: `scan_matching.DriftCorrection`);
-otherwise odometry and the walls have the yaw.
+ground itself with the estimate off. Yaw is not used (odometry has it).
 
 On a ramp an IMU gives the slope, not the floor under the wheels: the ground estimate
 (bounded near the tilted prior) finds the ramp's plane again.
@@ -42,29 +40,21 @@ MAX_TILT = math.radians(45.0)
 class ImuSample:
     stamp_ns: int
     tilt: Transform  # the base's roll and pitch against gravity, yaw 0
-    heading: float = math.nan  # the base's yaw in the IMU's world frame, radians
 
 
 def base_tilt(orientation: tuple[float, float, float, float], base_to_imu: Transform) -> Transform:
     """The base's roll and pitch (a rotation, yaw 0) from the IMU frame's orientation
-    (x, y, z, w) and the IMU's mounting on the base; InputError for an unusable one."""
-    return base_attitude(orientation, base_to_imu)[0]
+    (x, y, z, w) and the IMU's mounting on the base; InputError for an unusable one.
 
-
-def base_attitude(
-    orientation: tuple[float, float, float, float], base_to_imu: Transform
-) -> tuple[Transform, float]:
-    """`base_tilt`, and the base's heading (yaw, radians) in the frame the orientation is
-    given in. Remembered for the last few samples: streams fed the same IMU (the evaluation
-    runs one per method) each ask for the same."""
+    Remembered for the last few samples: streams fed the same IMU (the evaluation runs one
+    per method) each ask for the same tilt.
+    """
     x, y, z, w = orientation
-    return _base_attitude((float(x), float(y), float(z), float(w)), base_to_imu)
+    return _base_tilt((float(x), float(y), float(z), float(w)), base_to_imu)
 
 
 @functools.lru_cache(maxsize=64)
-def _base_attitude(
-    orientation: tuple[float, float, float, float], base_to_imu: Transform
-) -> tuple[Transform, float]:
+def _base_tilt(orientation: tuple[float, float, float, float], base_to_imu: Transform) -> Transform:
     values = np.asarray(orientation, dtype=np.float64)
     norm = float(np.linalg.norm(values)) if np.isfinite(values).all() else math.nan
     if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
@@ -75,7 +65,7 @@ def _base_attitude(
         raise InputError(msg)
     x, y, z, w = (float(v) for v in values / norm)
     world_to_base = Transform(rotation=(x, y, z, w)) @ base_to_imu.inverse()
-    roll, pitch, heading = world_to_base.rpy()
+    roll, pitch, _ = world_to_base.rpy()
     if max(abs(roll), abs(pitch)) > MAX_TILT:
         msg = (
             f'IMU says the base is rolled {math.degrees(roll):.1f} deg and pitched '
@@ -83,7 +73,7 @@ def _base_attitude(
             "the IMU's frame and its mounting on the base"
         )
         raise InputError(msg)
-    return Transform.from_rpy(roll, pitch, 0.0), heading
+    return Transform.from_rpy(roll, pitch, 0.0)
 
 
 class ImuHistory:
@@ -95,23 +85,16 @@ class ImuHistory:
     def __len__(self) -> int:
         return len(self._samples)
 
-    def add(self, stamp_ns: int, tilt: Transform, heading: float = math.nan) -> None:
-        """A new tilt (and heading); one older than the newest is dropped (an IMU's stamps
-        ascend)."""
+    def add(self, stamp_ns: int, tilt: Transform) -> None:
+        """A new tilt; one older than the newest is dropped (an IMU's stamps ascend)."""
         if self._samples and stamp_ns < self._samples[-1].stamp_ns:
             return
-        self._samples.append(ImuSample(stamp_ns, tilt, heading))
+        self._samples.append(ImuSample(stamp_ns, tilt))
 
-    def heading_at(self, stamp_ns: int) -> float | None:
-        """The base's heading by the sample nearest `stamp_ns`; None when none is within
-        MAX_AGE_NS or it has none."""
-        nearest = self._nearest(stamp_ns)
-        if nearest is None or not math.isfinite(self._samples[nearest].heading):
-            return None
-        return self._samples[nearest].heading
-
-    def _nearest(self, stamp_ns: int) -> int | None:
-        """Index of the sample nearest `stamp_ns` if within MAX_AGE_NS."""
+    def tilt_at(self, stamp_ns: int) -> Transform | None:
+        """The mean roll and pitch of the samples within AVERAGE_NS of `stamp_ns` (an IMU's
+        noise, not the body's rocking, changes within it), else of the nearest one; None when
+        none is within MAX_AGE_NS (no IMU, or it stopped)."""
         if not self._samples:
             return None
         stamps = [sample.stamp_ns for sample in self._samples]
@@ -120,16 +103,8 @@ class ImuHistory:
             (i for i in (index - 1, index) if 0 <= i < len(stamps)),
             key=lambda i: abs(stamps[i] - stamp_ns),
         )
-        return nearest if abs(stamps[nearest] - stamp_ns) <= MAX_AGE_NS else None
-
-    def tilt_at(self, stamp_ns: int) -> Transform | None:
-        """The mean roll and pitch of the samples within AVERAGE_NS of `stamp_ns` (an IMU's
-        noise, not the body's rocking, changes within it), else of the nearest one; None when
-        none is within MAX_AGE_NS (no IMU, or it stopped)."""
-        nearest = self._nearest(stamp_ns)
-        if nearest is None:
+        if abs(stamps[nearest] - stamp_ns) > MAX_AGE_NS:
             return None
-        stamps = [sample.stamp_ns for sample in self._samples]
         first = bisect.bisect_left(stamps, stamp_ns - AVERAGE_NS)
         last = bisect.bisect_right(stamps, stamp_ns + AVERAGE_NS)
         near = [self._samples[i].tilt.rpy() for i in range(first, last)] or [

@@ -452,9 +452,6 @@ KEYFRAME_SHIFT = 0.3
 # `RECENT_MATCHES`; the reference is kept, so the next, straight scan recovers the slip.
 DISTORTION_RATIO = 1.6
 RECENT_MATCHES = 16
-# Between two scans, an IMU's turn and odometry's may differ by wheel slip; by more than this
-# (radians), one of them jumped (a magnetometer near steel, a reset): odometry's is kept.
-MAX_HEADING_DISAGREEMENT = 0.1
 
 
 @dataclass
@@ -475,12 +472,10 @@ class DriftCorrection:
     odometry's move and C stays where it was. A refused match keeps C and starts a new
     reference at the current scan.
 
-    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is not matched, and the
-    next level scan starts a new reference. Meanwhile C is kept, or, with an IMU's heading,
-    moved so that the corrected pose takes odometry's distance and the IMU's turn between
-    two scans (wheels slip on a ramp and turn odometry by degrees). Tilted, the plane of a
-    LiDAR 0.3 m up meets the floor 8.6 m off at 2 degrees and 2.4 m off at 7 (a 1:8 ramp),
-    and it slices the walls at other heights than the reference did; on the simulator's ramps,
+    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is not matched: C is
+    kept and the next level scan starts a new reference. Tilted, the plane of a LiDAR 0.3 m
+    up meets the floor 8.6 m off at 2 degrees and 2.4 m off at 7 (a 1:8 ramp), and it
+    slices the walls at other heights than the reference did; on the simulator's ramps,
     matching such scans moved the corrected pose 0.13 m along the ramp's corridor within
     one turn at its crest.
     """
@@ -493,7 +488,6 @@ class DriftCorrection:
         self.last: Match | None = None
         self._keyframe: _Keyframe | None = None
         self._recent: deque[float] = deque(maxlen=RECENT_MATCHES)  # residuals of late matches
-        self._previous: tuple[PlanarPose, float | None] | None = None  # odometry, heading
 
     def reset(self) -> None:
         """Back to odometry (C the identity): the odometry frame itself changed."""
@@ -501,44 +495,22 @@ class DriftCorrection:
         self._keyframe = None
         self.last = None
         self._recent.clear()
-        self._previous = None
 
     def corrected(self, pose: PlanarPose) -> PlanarPose:
         """An odometry pose of the base in the corrected frame: C composed with it."""
         return self.correction.compose(pose)
 
     def update(
-        self,
-        scan: Scan,
-        base: PlanarPose,
-        base_to_laser: Transform,
-        *,
-        tilt: float = 0.0,
-        heading: float | None = None,
+        self, scan: Scan, base: PlanarPose, base_to_laser: Transform, *, tilt: float = 0.0
     ) -> Match | None:
         """Take the LiDAR `scan` (every beam at its stamp) with the base's odometry pose
-        `base` at that stamp, its plane's `tilt` from level (radians; 0: level or unknown)
-        and the base's `heading` by an IMU (radians, any fixed zero; None: no IMU). Returns
-        the match (None: the first scan, a reference)."""
+        `base` at that stamp and its plane's `tilt` from level (radians; 0: level or
+        unknown). Returns the match (None: the first scan, a reference)."""
         if not base.is_finite():
             msg = f'drift correction needs a finite odometry pose, got {base}'
             raise InputError(msg)
-        try:
-            return self._update(scan, base, base_to_laser, tilt, heading)
-        finally:
-            self._previous = (base, heading)
-
-    def _update(
-        self,
-        scan: Scan,
-        base: PlanarPose,
-        base_to_laser: Transform,
-        tilt: float,
-        heading: float | None,
-    ) -> Match | None:
         if not tilt <= self.settings.max_tilt:
             self._keyframe = None
-            self._turn_by_heading(base, heading)
             self.refused[Refusal.TILTED] = self.refused.get(Refusal.TILTED, 0) + 1
             self.last = Match(RelativePose(0.0, 0.0, 0.0), Refusal.TILTED, 0, math.nan, 0)
             return self.last
@@ -582,22 +554,6 @@ class DriftCorrection:
         ):
             self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, corrected)
         return result
-
-    def _turn_by_heading(self, base: PlanarPose, heading: float | None) -> None:
-        """Move C so that the corrected pose took odometry's step since the last scan with
-        the IMU's turn instead of odometry's (nothing without both headings, or when they
-        disagree beyond `MAX_HEADING_DISAGREEMENT`)."""
-        if self._previous is None or heading is None:
-            return
-        last, last_heading = self._previous
-        if last_heading is None:
-            return
-        step = last.between(base)  # in the base's frame at `last`
-        turn = math.remainder(heading - last_heading, 2.0 * math.pi)
-        if abs(math.remainder(turn - step.yaw, 2.0 * math.pi)) > MAX_HEADING_DISAGREEMENT:
-            return
-        corrected = self.corrected(last).compose(PlanarPose(step.x, step.y, turn))
-        self.correction = corrected.compose(base.inverse())
 
     def _screened(self, result: Match, prediction: RelativePose) -> Match:
         """`result`, or refused as `DISTORTED` when its residual is far above the recent

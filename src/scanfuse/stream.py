@@ -63,7 +63,7 @@ from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
 from scanfuse.fuse.deskew import deskew_scan
 from scanfuse.fuse.merge import merge_scans
-from scanfuse.imu import ImuHistory, base_attitude
+from scanfuse.imu import ImuHistory, base_tilt
 from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
@@ -507,9 +507,9 @@ class FusionStream(Generic[T]):
         self, stamp_ns: int, orientation: tuple[float, float, float, float], frame_id: str = ''
     ) -> None:
         """An IMU's orientation (sensor_msgs/Imu, x y z w) at `stamp_ns`: the base's pitch
-        and roll then (`imu`), and its heading (the memory's turn while scans are tilted).
-        Its frame is placed on the base by TF (the base frame itself when empty); one TF
-        cannot place, or a quaternion that is not a unit one, is counted as malformed."""
+        and roll then (`imu`). Its frame is placed on the base by TF (the base frame itself
+        when empty); one TF cannot place, or a quaternion that is not a unit one, is
+        counted as malformed."""
         base_to_imu: Transform | None = Transform()
         if frame_name(frame_id) not in ('', frame_name(self.config.base_frame)):
             base_to_imu = self.mounting(frame_id, Transform())
@@ -517,11 +517,11 @@ class FusionStream(Generic[T]):
             if base_to_imu is None:
                 msg = f'TF has no path from {self.config.base_frame} to the IMU frame {frame_id}'
                 raise TransformError(msg)
-            tilt, heading = base_attitude(orientation, base_to_imu)
+            tilt = base_tilt(orientation, base_to_imu)
         except ScanfuseError as err:
             self.note_malformed('imu', err)
             return
-        self.imu.add(stamp_ns, tilt, heading)
+        self.imu.add(stamp_ns, tilt)
 
     def add_odometry(self, stamp_ns: int, pose: PlanarPose, *, source: str | None = None) -> None:
         """The base's pose in the odometry frame at `stamp_ns` (nav_msgs/Odometry or TF).
@@ -1288,11 +1288,7 @@ class FusionStream(Generic[T]):
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
         result = self.drift.update(
-            scan,
-            base,
-            base_to_laser,
-            tilt=self._plane_tilt(scan.stamp_ns, base_to_laser),
-            heading=self.imu.heading_at(scan.stamp_ns),
+            scan, base, base_to_laser, tilt=self._plane_tilt(scan.stamp_ns, base_to_laser)
         )
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
