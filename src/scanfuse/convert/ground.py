@@ -46,7 +46,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -184,11 +184,18 @@ class GroundSettings:
 class GroundSample:
     """The pixels one camera's ground estimate looks at, their rays (x_n, y_n, 1), and the
     numbers in [0, 1) that pick each RANSAC hypothesis's three candidates (seeded: a frame
-    gives the same plane every time)."""
+    gives the same plane every time); and the profile's grid (`profile_columns` of the
+    image, `profile_rows` nearest first) with its rays' x_n, y_n, row by row (read from the
+    camera's whole-image tables, they cost the profile's walk a cache miss a pixel)."""
 
     indices: npt.NDArray[np.intp]
     rays: F64
     draws: F64
+    width: int
+    profile_columns: npt.NDArray[np.int64]
+    profile_rows: npt.NDArray[np.int64]
+    profile_x: npt.NDArray[np.float32]
+    profile_y: npt.NDArray[np.float32]
 
     @classmethod
     def build(
@@ -205,7 +212,19 @@ class GroundSample:
         with np.errstate(invalid='ignore'):
             down = (rays @ prior.vector < 0.0) & np.isfinite(rays).all(axis=1)
         draws = np.random.default_rng(0).random((hypotheses, 3))
-        return cls(indices=grid[down], rays=np.ascontiguousarray(rays[down]), draws=draws)
+        profile_columns, profile_rows = _profile_grid(camera.width, camera.height)
+        profile_pixels = (profile_rows[:, None] * camera.width + profile_columns[None, :]).ravel()
+        x_table, y_table = (c.ravel() for c in camera.normalized_coordinates)
+        return cls(
+            indices=grid[down],
+            rays=np.ascontiguousarray(rays[down]),
+            draws=draws,
+            width=camera.width,
+            profile_columns=profile_columns,
+            profile_rows=profile_rows,
+            profile_x=x_table[profile_pixels],
+            profile_y=y_table[profile_pixels],
+        )
 
 
 @dataclass
@@ -408,26 +427,27 @@ def _profile_grid(width: int, height: int) -> tuple[npt.NDArray[np.int64], ...]:
 
 def ground_profile(
     depth: npt.NDArray[np.generic],
-    camera: CameraModel,
+    sample: GroundSample,
     plane: GroundPlane,
     settings: GroundSettings,
 ) -> GroundProfile | None:
     """The ground of this frame where it leaves `plane` (ramps), or None where it does not
-    (by more than `PROFILE_DEADBAND` in `PROFILE_EVIDENCE` bins in a row, in any column)."""
+    (by more than `PROFILE_DEADBAND` in `PROFILE_EVIDENCE` bins in a row, in any column);
+    `sample` is the camera's (`GroundSample.build`)."""
     if settings.max_slope <= 0.0:
         return None
     flat, scale = _kernel_depth(depth)
-    columns, rows = _profile_grid(camera.width, camera.height)
+    columns = sample.profile_columns
     bins = max(1, math.ceil(settings.reach / PROFILE_BIN))
     heights = np.empty((columns.size, bins))
     lows = np.empty((columns.size, bins))
     evidence = np.empty(columns.size, dtype=np.int64)
-    x_n, y_n = (np.asarray(c).ravel() for c in camera.normalized_coordinates)
     forward, left = _plane_axes(plane)
     ground_kernel.profile(
-        flat, scale, camera.width, columns, rows, x_n, y_n,
-        np.array([*plane.normal, plane.offset]), forward, left, math.tan(settings.max_slope),
-        settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND, heights, evidence, lows,
+        flat, scale, sample.width, columns, sample.profile_rows, sample.profile_x,
+        sample.profile_y, np.array([*plane.normal, plane.offset]), forward, left,
+        math.tan(settings.max_slope), settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND,
+        heights, evidence, lows,
     )  # fmt: skip
     if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None
@@ -479,18 +499,19 @@ class MountCheck:
     the last `MOUNT_CHECK_FRAMES` frames whose floor was found (`disagreement`)."""
 
     def __init__(self) -> None:
-        self._pairs: deque[tuple[MountPose, MountPose]] = deque(maxlen=MOUNT_CHECK_FRAMES)
+        # Planes, read as poses only when asked (a diagnostics period, not every frame).
+        self._pairs: deque[tuple[GroundPlane, GroundPlane]] = deque(maxlen=MOUNT_CHECK_FRAMES)
 
     def add(self, found: GroundPlane, prior: GroundPlane) -> None:
-        self._pairs.append((MountPose.above(found), MountPose.above(prior)))
+        self._pairs.append((found, prior))
 
     def means(self) -> tuple[MountPose, MountPose] | None:
         """The mean pose the floor gives and the mount gives; None before any frame."""
         if not self._pairs:
             return None
         found, prior = (
-            MountPose(*np.mean([(p.height, p.pitch, p.roll) for p in poses], axis=0).tolist())
-            for poses in zip(*self._pairs, strict=True)
+            MountPose(*np.mean([astuple(MountPose.above(p)) for p in planes], axis=0).tolist())
+            for planes in zip(*self._pairs, strict=True)
         )
         return found, prior
 
@@ -579,7 +600,7 @@ class GroundTracker:
                 lift = (1.0 - weight) * self._correction[1] + weight * lift
             self._correction = (turn, lift)
         self._estimate = prior if self._correction is None else _corrected(prior, *self._correction)
-        self.profile = ground_profile(depth, camera, self._estimate, self.settings)
+        self.profile = ground_profile(depth, self._sample, self._estimate, self.settings)
         return self._estimate
 
 

@@ -33,6 +33,11 @@ BEND_OFFSET = 0.01
 NEAREST_SHARE = 0.05
 # Hypotheses are scored on every SCORE_STRIDE-th candidate; the refinement uses them all.
 SCORE_STRIDE = 2
+# Random triples stop once one of them holds only inliers with this probability, given the
+# best hypothesis's share of inliers w: after log(1 - p) / log(1 - w^3) of them (adaptive
+# RANSAC, Hartley and Zisserman, Algorithm 4.5). Where the floor fills the candidates (the
+# tracked plane holds 90 % of them), 6 triples; where a box or a wall's foot takes half, all.
+CONFIDENCE = 0.999
 # Metres above the plane (beyond the depth's noise) an inlier of the refinement may lie.
 ABOVE = 0.003
 # Metres above the steepest floor's rise (beyond 3 sigma of noise) a point of an obstacle's
@@ -193,7 +198,8 @@ def _fit(
     # floor is one plane there (the longer the run, the truer the tilt), else over FIT_RUN:
     # a long run takes in a ramp's foot (or a crest) well before the robot gets there, and
     # the plane tilts towards it. A ramp farther ahead is the profile's (`_profile`).
-    nearest = np.sort(runs[:count])[int(NEAREST_SHARE * (count - 1))]
+    share = int(NEAREST_SHARE * (count - 1))
+    nearest = np.partition(runs[:count], share)[share]
     near = np.empty(7)
     fit_within(
         points, tolerance, noise_band, runs, count, nearest + FIT_RUN, prior, start, base,
@@ -238,7 +244,9 @@ def _fit_within(
     kept = 0
     for i in range(count):
         if runs[i] <= limit:
-            points[kept] = candidates[i]
+            points[kept, 0] = candidates[i, 0]
+            points[kept, 1] = candidates[i, 1]
+            points[kept, 2] = candidates[i, 2]
             tolerance[kept] = candidate_tolerance[i]
             noise_band[kept] = candidate_noise[i]
             kept += 1
@@ -251,8 +259,13 @@ def _fit_within(
         return
     best = np.empty(4)
     best_score = -(2**62)
+    best_inliers = 0
+    scored = (count + SCORE_STRIDE - 1) // SCORE_STRIDE
+    needed = draws.shape[0]
     candidate = np.empty(4)
     for h in range(draws.shape[0] + 3):
+        if h - 3 >= needed:
+            break
         if h == 0:
             candidate[:] = prior
         elif h == 1:
@@ -277,7 +290,7 @@ def _fit_within(
             candidate[3] = -(normal[0] * p0[0] + normal[1] * p0[1] + normal[2] * p0[2])
         if not admissible(candidate, prior, base, cos_tilt, max_offset):
             continue
-        score = 0
+        inliers, below = 0, 0
         for i in range(0, count, SCORE_STRIDE):
             height = (
                 candidate[0] * points[i, 0]
@@ -285,11 +298,15 @@ def _fit_within(
                 + candidate[2] * points[i, 2]
                 + candidate[3]
             )
-            # The floor is the lowest large surface: points below a plane count against it.
-            score += int(abs(height) <= tolerance[i]) - int(height < -tolerance[i])
+            inliers += int(abs(height) <= tolerance[i])
+            below += int(height < -tolerance[i])
+        # The floor is the lowest large surface: points below a plane count against it.
+        score = inliers - below
         if score > best_score:
             best_score = score
             best[:] = candidate
+            best_inliers = inliers
+            needed = min(needed, triples_needed(best_inliers / scored))
     if best_score == -(2**62):
         out[6] = OUT_OF_BOUNDS
         return
@@ -310,6 +327,17 @@ def _fit_within(
         out[6] = OK
 
 
+def _triples_needed(share: float) -> int:
+    """Random triples after which one of them held only inliers with probability
+    CONFIDENCE, `share` of the candidates being inliers."""
+    all_in = share**3
+    if all_in >= 1.0:
+        return 0
+    if all_in <= 0.0:
+        return 2**31
+    return math.ceil(math.log(1.0 - CONFIDENCE) / math.log(1.0 - all_in))
+
+
 def _admissible(plane: Any, prior: Any, base: Any, cos_tilt: float, max_offset: float) -> bool:
     """Whether `plane` (normal, offset) is within the bounds of the prior or of `base`."""
     for reference in (prior, base):
@@ -320,6 +348,7 @@ def _admissible(plane: Any, prior: Any, base: Any, cos_tilt: float, max_offset: 
 
 
 admissible = compiled(_admissible)
+triples_needed = compiled(_triples_needed)
 axes = compiled(_axes)
 fit_within = compiled(_fit_within)
 determinant3 = compiled(_determinant)
@@ -356,8 +385,10 @@ def _profile(
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
 
-    Each column's pixels (`rows`, nearest first) become points; the bins are walked outwards
-    from the camera's foot, where the ground is the plane (height 0). A bin's ground is the
+    `x_n`, `y_n` are the rays of the grid's pixels, row by row (the j-th row's c-th column
+    at j * columns.size + c). Each column's pixels (`rows`, nearest first) become points;
+    the bins are walked outwards from the camera's foot, where the ground is the plane
+    (height 0). A bin's ground is the
     mean height of its points that may be ground (`_candidate`: within tan_slope * run and
     their noise of the last ground, run their horizontal distance from it), clamped to
     tan_slope * min(run, bin_size): the profile never rises or falls faster than the
@@ -391,19 +422,22 @@ def _profile(
         for c in range(columns_used):
             column = columns[c]
             index = rows[j] * width + column
-            if not (0 <= column < width and 0 <= index < min(depth.size, x_n.size, y_n.size)):
+            ray = j * columns.size + c
+            if not (
+                0 <= column < width and 0 <= index < depth.size and ray < min(x_n.size, y_n.size)
+            ):
                 continue
             z = np.float64(depth[index]) * scale
             if not z > 0.0:
                 continue
-            x, y = x_n[index] * z, y_n[index] * z
+            x, y = x_n[ray] * z, y_n[ray] * z
             h = plane[0] * x + plane[1] * y + plane[2] * z + plane[3]
             along = forward[0] * x + forward[1] * y + forward[2] * z
             across = left[0] * x + left[1] * y + left[2] * z
             r = math.sqrt(along * along + across * across)
             if not (r < bins * bin_size and math.isfinite(h)):  # also NaN, before int()
                 continue
-            vertical = abs(plane[0] * x_n[index] + plane[1] * y_n[index] + plane[2])
+            vertical = abs(plane[0] * x_n[ray] + plane[1] * y_n[ray] + plane[2])
             radius[c, j], height[c, j] = r, h
             slot[c, j] = min(int(r / bin_size), bins - 1)
             allowed[c, j] = noise * z * z * vertical  # 1 sigma of the point's height
