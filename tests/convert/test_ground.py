@@ -462,6 +462,18 @@ def test_the_slope_margin_is_three_sigma_of_the_extra_noise_above_the_ramp():
     assert slope_margin(0.0, 0.05, -0.1) == 0.0  # no noise
 
 
+def test_random_triples_stop_once_one_held_only_inliers_with_999_in_1000():
+    from scanfuse.convert.ground_kernel import triples_needed
+
+    # Hartley and Zisserman's N = log(1 - p) / log(1 - w^3), p = 0.999, rounded up:
+    # w = 0.9: -6.908 / log(0.271) = -6.908 / -1.306 = 5.29, so 6;
+    # w = 0.5: -6.908 / log(0.875) = -6.908 / -0.1335 = 51.7, so 52 (more than the 40 drawn).
+    assert triples_needed(0.9) == 6
+    assert triples_needed(0.5) == 52
+    assert triples_needed(1.0) == 0  # the hypothesis already holds every candidate
+    assert triples_needed(0.0) > 10**6  # no inlier: every triple drawn
+
+
 def test_the_fit_without_numba_gives_the_compiled_fits_plane():
     from scanfuse.convert import ground_kernel
     from scanfuse.convert.ground import GroundSample, _kernel_depth

@@ -79,9 +79,9 @@ def _refine(
     floor everywhere."""
     normal = plane[:3].copy()
     first, second = axes(normal)
-    # Normal equations of h = a + b u + c v, and the (u, v) moments for the spread.
-    m = np.zeros((3, 3))
-    rhs = np.zeros(3)
+    # Normal equations of h = a + b u + c v, and the (u, v) moments for the spread, summed
+    # in scalars (array elements are stored back every point: twice the loop's time).
+    s_1 = s_u = s_v = s_uu = s_uv = s_vv = s_h = s_hu = s_hv = 0.0
     inliers = 0
     for i in range(count):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
@@ -91,17 +91,21 @@ def _refine(
         u = first[0] * x + first[1] * y + first[2] * z
         v = second[0] * x + second[1] * y + second[2] * z
         inliers += 1
-        m[0, 0] += 1.0
-        m[0, 1] += u
-        m[0, 2] += v
-        m[1, 1] += u * u
-        m[1, 2] += u * v
-        m[2, 2] += v * v
-        rhs[0] += h
-        rhs[1] += h * u
-        rhs[2] += h * v
+        s_1 += 1.0
+        s_u += u
+        s_v += v
+        s_uu += u * u
+        s_uv += u * v
+        s_vv += v * v
+        s_h += h
+        s_hu += h * u
+        s_hv += h * v
     if inliers < 3:
         return inliers
+    m = np.empty((3, 3))
+    m[0, 0], m[0, 1], m[0, 2] = s_1, s_u, s_v
+    m[1, 1], m[1, 2], m[2, 2] = s_uu, s_uv, s_vv
+    rhs = np.array([s_h, s_hu, s_hv])
     n = m[0, 0]
     mean_u, mean_v = m[0, 1] / n, m[0, 2] / n
     var_u = m[1, 1] / n - mean_u * mean_u
