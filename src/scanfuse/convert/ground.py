@@ -14,7 +14,9 @@ the camera's optical frame, with the mounting's plane as the prior:
   `ground_kernel.FIT_RUN` metres, else the latter's (the floor the robot stands on, not a
   ramp's foot or a crest ahead: that is the profile's);
 - RANSAC over those candidates (hypotheses: the prior, the last estimate and random
-  triples; seeded, so a frame gives the same plane every time) keeps the admissible plane
+  triples, at most `hypotheses` of them and no more once one held only inliers with
+  probability `ground_kernel.CONFIDENCE`; seeded, so a frame gives the same plane every
+  time) keeps the admissible plane
   (normal within `max_tilt` of the prior's, offset within `max_offset`; with an IMU, of the
   prior's or of the mounting's own plane: on a ramp the wheels stand on the ramp, the IMU's
   level floor is the ramp's slope away from it) with the best score:
@@ -145,7 +147,7 @@ class GroundSettings:
     min_spread: float = 0.1  # metres: standard deviation of the inliers along each plane axis
     smoothing: float = 0.3  # weight of the new frame's plane
     samples: int = 1500  # pixels looked at per frame
-    hypotheses: int = 40  # random triples tried per frame
+    hypotheses: int = 40  # random triples tried per frame, at most
     max_slope: float = math.atan(1.0 / 8.0)  # radians: steeper ground is not floor; 0: one plane
 
     def __post_init__(self) -> None:
