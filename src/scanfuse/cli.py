@@ -484,6 +484,15 @@ def evaluate(
             'the same trials (repeat for more parameters); writes sweep.md, .json, .png',
         ),
     ] = None,
+    score: Annotated[
+        list[str] | None,
+        typer.Option(
+            '--score',
+            help='also score this method on the same scans, without driving: a method, or a '
+            "fusing one with parameters changed, e.g. 'obstacle[memory_scan_matching=false]' "
+            '(repeat for more)',
+        ),
+    ] = None,
 ) -> None:
     """Measure every method: scan metrics, maps, closed-loop collisions; write a report.
 
@@ -491,7 +500,9 @@ def evaluate(
     slab is the file's, and every method changes only what defines it (e.g. `row` sets the
     method) on top of the file's values; `scanfuse.yaml` in --out records what was used.
     With --sweep every combination of the values runs on the same trials instead, and
-    --out holds the comparison (sweep.md, sweep.json, sweep.png).
+    --out holds the comparison (sweep.md, sweep.json, sweep.png). A method given to --score
+    is scored on the scans of the drives the others make: a change measured on the same
+    drives, without the closed loop's chance.
     """
     from scanfuse.evaluate.cli import run_evaluate  # noqa: PLC0415
 
@@ -506,6 +517,7 @@ def evaluate(
         cluster=cluster,
         max_retries=max_retries,
         sweeps=sweep or (),
+        scored=score or (),
     )
 
 

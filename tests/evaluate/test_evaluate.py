@@ -53,6 +53,36 @@ def test_unknown_method():
         method_spec('nope')
 
 
+def test_a_method_with_parameters_changed_is_its_base_with_them():
+    variant = method_spec('obstacle[memory=false, ground_smoothing=0.5]')
+    config = variant.config(BASE, CAMERA)
+    assert config == METHODS['obstacle'].config(BASE, CAMERA).with_changes(
+        memory=False, ground_smoothing=0.5
+    )
+    assert config.range_max == 3.0  # the base's own change kept
+    assert variant.imu is True
+    assert 'memory=false' in variant.description
+    # A change of one of the base's own parameters replaces it.
+    assert method_spec('obstacle[range_max=4.0]').config(BASE, CAMERA).range_max == 4.0
+    # The base's IMU choice is kept.
+    assert method_spec('obstacle-no-ground[memory=false]').imu is False
+
+
+@pytest.mark.parametrize(
+    ('name', 'message'),
+    [
+        ('obstacle[memroy=false]', 'did you mean memory'),
+        ('obstacle[ground_smoothing=2.0]', 'ground_smoothing'),
+        ('obstacle[memory]', "'memory' is not NAME=VALUE"),
+        ('lidar[memory=false]', "unknown method 'lidar\\[memory=false\\]'"),
+        ('sonar[memory=false]', 'unknown method'),
+    ],
+)
+def test_a_wrong_parameter_change_is_refused_by_name(name, message):
+    with pytest.raises(ConfigError, match=message):
+        method_spec(name)
+
+
 def wall_scan(distance: float) -> Scan:
     grid = lidar_profile('rplidar-a2').grid
     return Scan(

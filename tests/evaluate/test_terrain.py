@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
 
 from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
-from scanfuse.evaluate.cli import parse_worlds
+from scanfuse.evaluate.cli import parse_worlds, with_scored
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
 from scanfuse.evaluate.results import EvaluationResult
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, terrain_simulation
@@ -92,7 +92,7 @@ def test_terrain_names_are_checked():
         Evaluation(EvaluationSettings.quick(terrain=('terrain-moon',)))
     with pytest.raises(ConfigError, match=r"unknown terrain method 'sonar'; choose from lidar"):
         Evaluation(EvaluationSettings.quick(terrain_methods=('sonar',)))
-    with pytest.raises(ConfigError, match=r"unknown terrain scored method 'sonar'; choose from"):
+    with pytest.raises(ConfigError, match=r"unknown method 'sonar'; choose from lidar"):
         Evaluation(EvaluationSettings.quick(terrain_scored=('sonar',)))
 
 
@@ -140,6 +140,44 @@ def test_a_quick_terrain_evaluation_runs_end_to_end(tmp_path):
     assert replace(loaded.terrain_trials[0]).peak_pitch == pytest.approx(
         result.terrain_trials[0].peak_pitch
     )
+
+
+def test_a_scored_method_with_parameters_changed_is_scored_on_the_same_drives(tmp_path):
+    # The variants restate `obstacle` and `obstacle-no-memory`: scored on the same scans,
+    # they must tally to the slot what those do (a drive of their own would differ).
+    settings = with_scored(
+        EvaluationSettings.quick(
+            worlds=('terrain',),
+            terrain=('terrain-brake',),
+            terrain_methods=('obstacle',),
+            methods=('obstacle', 'obstacle-no-memory'),
+            terrain_scored=('obstacle', 'obstacle-no-memory'),
+            closed_loop_methods=(),
+            turning=(),
+            amr=(),
+        ),
+        ['obstacle[memory=true]', 'obstacle[memory=false]', 'obstacle[memory=false]'],
+    )
+    assert settings.terrain_scored == (
+        'obstacle',
+        'obstacle-no-memory',
+        'obstacle[memory=true]',
+        'obstacle[memory=false]',
+    )
+    result = run_evaluation(tmp_path, settings)
+    assert result.terrain['obstacle'].scan.slots > 0
+    for variant, method in (
+        ('obstacle[memory=true]', 'obstacle'),
+        ('obstacle[memory=false]', 'obstacle-no-memory'),
+    ):
+        for metrics in ('scan', 'scan_slopes'):
+            np.testing.assert_equal(  # NaN (no low obstacle near) equals NaN
+                asdict(getattr(result.terrain[variant], metrics)),
+                asdict(getattr(result.terrain[method], metrics)),
+            )
+    # Scored, not driven.
+    assert result.terrain['obstacle[memory=false]'].closed_loop is None
+    assert {o.method for o in result.terrain_trials} == {'obstacle'}
 
 
 def test_slot_truth_on_a_platform_the_lidars_plane_lies_higher():

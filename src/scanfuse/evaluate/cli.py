@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from scanfuse.cluster import RayCluster, backend_of
@@ -68,6 +69,22 @@ def check_output_folder(out: Path) -> None:
         raise ConfigError(msg)
 
 
+def with_scored(settings: EvaluationSettings, names: Sequence[str]) -> EvaluationSettings:
+    """`settings` with the methods `names` scored too, on every trial's and every terrain
+    trial's scans (`--score`); a wrong name or parameter fails here, before any trial."""
+    from scanfuse.evaluate.methods import method_spec  # noqa: PLC0415
+
+    for name in names:
+        method_spec(name)
+    extra = [name for name in dict.fromkeys(names) if name not in settings.methods]
+    terrain = [name for name in dict.fromkeys(names) if name not in settings.terrain_scored]
+    return replace(
+        settings,
+        methods=(*settings.methods, *extra),
+        terrain_scored=(*settings.terrain_scored, *terrain),
+    )
+
+
 def run_evaluate(
     out: Path,
     *,
@@ -80,8 +97,11 @@ def run_evaluate(
     cluster: str | None = None,
     max_retries: int | None = None,
     sweeps: Sequence[str] = (),
+    scored: Sequence[str] = (),
 ) -> EvaluationResult | SweepResult:
-    """Run the evaluation into `out` and print the headline table and where things are."""
+    """Run the evaluation into `out` and print the headline table and where things are;
+    `scored`: methods scored besides the default ones, on the same scans (they do not
+    drive), such as `obstacle[memory_scan_matching=false]`."""
     from scanfuse.sim.headless_gl import choose_headless_gl  # noqa: PLC0415
 
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
@@ -104,7 +124,7 @@ def run_evaluate(
         changes['trials'] = trials
     make = EvaluationSettings.quick if quick else EvaluationSettings
     backend = backend_of(jobs, cluster, max_retries)
-    settings = make(**changes)  # type: ignore[arg-type]
+    settings = with_scored(make(**changes), scored)  # type: ignore[arg-type]
     if sweeps:
         return _run_sweep(out, settings, sweeps, backend, console)
     result = run_evaluation(out, settings, RichProgress(console), backend=backend)

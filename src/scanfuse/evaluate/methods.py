@@ -35,8 +35,11 @@ source.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+import yaml
 
 from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import ConfigError
@@ -189,12 +192,48 @@ CLOSED_LOOP_METHODS = (
 )
 
 
+# A method with some fusion parameters changed: BASE[NAME=VALUE,...], the values as YAML
+# reads them (`obstacle[memory_scan_matching=false]`). Scored on the same drives as BASE, it
+# measures a change without the closed loop's chance (one stall moves a run's metrics more
+# than most changes do).
+_VARIANT = re.compile(r'(?P<base>[\w-]+)\[(?P<changes>[^\[\]]*)\]')
+
+
 def method_spec(name: str) -> MethodSpec:
+    """The method called `name`: one of `METHODS`, or a fusing one with changed parameters
+    (`BASE[NAME=VALUE,...]`)."""
     spec = METHODS.get(name)
-    if spec is None:
-        msg = f'unknown method {name!r}; choose from {", ".join(METHODS)}'
+    if spec is not None:
+        return spec
+    variant = _VARIANT.fullmatch(name)
+    base = METHODS.get(variant['base']) if variant else None
+    if variant is None or base is None or not base.fuses:
+        msg = (
+            f'unknown method {name!r}; choose from {", ".join(METHODS)}, or a fusing one with '
+            'parameters changed, e.g. obstacle[memory_scan_matching=false,ground_smoothing=0.5]'
+        )
         raise ConfigError(msg)
-    return spec
+    changes = _parameter_changes(name, variant['changes'])
+    FusionConfig().with_changes(**changes)  # an unknown name or a wrong value fails here
+    return MethodSpec(
+        name,
+        f'{base.name} with {variant["changes"]} (scored on the same scans)',
+        tuple({**dict(base.changes), **changes}.items()),
+        fuses=base.fuses,
+        imu=base.imu,
+    )
+
+
+def _parameter_changes(name: str, text: str) -> dict[str, object]:
+    """NAME=VALUE pairs, comma-separated, the values as YAML reads them."""
+    changes: dict[str, object] = {}
+    for pair in text.split(','):
+        key, equals, value = (part.strip() for part in pair.partition('='))
+        if not (key and equals and value):
+            msg = f'method {name!r}: {pair.strip()!r} is not NAME=VALUE (e.g. memory=false)'
+            raise ConfigError(msg)
+        changes[key] = yaml.safe_load(value)
+    return changes
 
 
 class MethodStream:

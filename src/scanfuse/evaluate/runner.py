@@ -53,7 +53,7 @@ from scanfuse.evaluate.mapping import (
     rasterize_footprints,
 )
 from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
-from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream
+from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream, method_spec
 from scanfuse.evaluate.metrics import ScanMetrics, ScanTally
 from scanfuse.evaluate.results import (
     ClosedLoopSummary,
@@ -391,16 +391,18 @@ class Evaluation:
 
     def __init__(self, settings: EvaluationSettings, progress: Progress | None = None) -> None:
         for kind, names, known in (
-            ('method', (*settings.methods, *settings.closed_loop_methods), METHODS),
+            ('method', settings.closed_loop_methods, METHODS),
             ('memory trial', settings.memory, MEMORY_FAMILIES),
             ('turning trial', settings.turning, TURNING_TRIALS),
             ('AMR trial', settings.amr, AMR_FAMILIES),
             ('AMR method', settings.amr_methods, AMR_METHODS),
             ('terrain trial', settings.terrain, TERRAIN_FAMILIES),
             ('terrain method', settings.terrain_methods, METHODS),
-            ('terrain scored method', settings.terrain_scored, METHODS),
         ):
             _check_names(kind, names, known)
+        # Scored methods may have parameters changed (`method_spec`); they do not drive.
+        for name in (*settings.methods, *settings.terrain_scored):
+            method_spec(name)
         self.settings = settings
         self.progress: Progress = progress or NullProgress()
         self.retried = 0  # trials run again on a Ray cluster after their worker died
@@ -723,7 +725,7 @@ class Evaluation:
             }
             methods[name] = MethodResult(
                 method=name,
-                description=METHODS[name].description,
+                description=method_spec(name).description,
                 scan=self.tallies[name].summary(),
                 scan_by_world={
                     world: tallies[name].summary() for world, tallies in self.world_tallies.items()
