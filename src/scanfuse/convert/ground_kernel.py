@@ -263,7 +263,6 @@ def _fit_within(
         return
     best = np.empty(4)
     best_score = -(2**62)
-    best_inliers = 0
     scored = (count + SCORE_STRIDE - 1) // SCORE_STRIDE
     needed = draws.shape[0]
     candidate = np.empty(4)
@@ -309,8 +308,7 @@ def _fit_within(
         if score > best_score:
             best_score = score
             best[:] = candidate
-            best_inliers = inliers
-            needed = min(needed, triples_needed(best_inliers / scored))
+            needed = min(needed, triples_needed(inliers / scored))
     if best_score == -(2**62):
         out[6] = OUT_OF_BOUNDS
         return
@@ -389,20 +387,19 @@ def _profile(
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
 
-    `x_n`, `y_n` are the rays of the grid's pixels, row by row (the j-th row's c-th column
-    at j * columns.size + c). Each column's pixels (`rows`, nearest first) become points;
-    the bins are walked outwards from the camera's foot, where the ground is the plane
-    (height 0). A bin's ground is the
-    mean height of its points that may be ground (`_candidate`: within tan_slope * run and
-    their noise of the last ground, run their horizontal distance from it), clamped to
-    tan_slope * min(run, bin_size): the profile never rises or falls faster than the
+    `x_n`, `y_n` are the rays of the grid's pixels, row by row: the j-th row's c-th column's
+    at j * columns.size + c. Each column's pixels (`rows`, nearest first) become points; the bins
+    are walked outwards from the camera's foot, where the ground is the plane (height 0). A
+    bin's ground is the mean height of its points that may be ground (`_candidate`: within
+    tan_slope * run and their noise of the last ground, run their horizontal distance from it),
+    clamped to tan_slope * min(run, bin_size): the profile never rises or falls faster than the
     steepest floor, however the points creep (an obstacle's face, a step, a drop are not
-    ground). It does not rise (fall) in a bin where many points stand clearly above (below)
-    any floor's rise: an obstacle's face, a drop's edge. A bin without ground keeps the last
-    ground; if it holds an obstacle's or a drop's points, the last ground's place moves on
-    to it (the ground is held level under an obstacle and across a drop: neither a box's
-    top nor a drop's far floor becomes ground by distance alone). At the end, a bin without
-    ground takes the ground of the nearest column within FILL_COLUMNS that saw it there.
+    ground). It does not rise (fall) in a bin where many points stand clearly above (below) any
+    floor's rise: an obstacle's face, a drop's edge. A bin without ground keeps the last ground;
+    if it holds an obstacle's or a drop's points, the last ground's place moves on to it (the
+    ground is held level under an obstacle and across a drop: neither a box's top nor a drop's
+    far floor becomes ground by distance alone). At the end, a bin without ground takes the
+    ground of the nearest column within FILL_COLUMNS that saw it there.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
     than `deadband` off the plane.
