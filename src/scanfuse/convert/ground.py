@@ -298,6 +298,7 @@ PROFILE_BIN = 0.15
 # foot make no profile, and the tables stay).
 PROFILE_DEADBAND = 0.02
 PROFILE_EVIDENCE = 3
+PROFILE_EVIDENCE_SIGMAS = 3.0
 # Noise sigmas by which the slab's bottom is raised over a ramp rising away from the camera
 # (by the extra its noise lifts readings there: `ground_kernel.slope_margin`). With the
 # default depth_noise a 1:12 ramp raises it by 1 cm at 2 m, 2.3 cm at 3 m.
@@ -449,7 +450,7 @@ def ground_profile(
         flat, scale, sample.width, columns, sample.profile_rows, sample.profile_x,
         sample.profile_y, np.array([*plane.normal, plane.offset]), forward, left,
         math.tan(settings.max_slope), settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND,
-        heights, evidence, lows,
+        PROFILE_EVIDENCE_SIGMAS, heights, evidence, lows,
     )  # fmt: skip
     if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None

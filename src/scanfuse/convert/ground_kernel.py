@@ -380,6 +380,7 @@ def _profile(
     noise: float,
     bin_size: float,
     deadband: float,
+    evidence_sigmas: float,
     profile: Any,
     evidence: Any,
     low: Any,
@@ -401,8 +402,8 @@ def _profile(
     far floor becomes ground by distance alone). At the end, a bin without ground takes the
     ground of the nearest column within FILL_COLUMNS that saw it there.
 
-    `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) more
-    than `deadband` off the plane.
+    `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
+    the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
 
     `low` is the lowest the ground may be, what a drop is measured below: the profile where
     a column saw ground (or took a neighbour's), and beyond, where it saw none (behind a
@@ -461,7 +462,7 @@ def _profile(
         evidence[c] = 0
         for b in range(bins):
             centre = (b + 0.5) * bin_size
-            total, found, above, below = 0.0, 0, 0, 0
+            total, spread, found, above, below = 0.0, 0.0, 0, 0, 0
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
                 run = radius[c, j] - at
@@ -469,6 +470,7 @@ def _profile(
                 clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[c, j]
                 if candidate(rise, run, tan_slope, allowed[c, j]):
                     total += height[c, j]
+                    spread += allowed[c, j] * allowed[c, j]
                     found += 1
                 elif rise > clear:
                     above += 1
@@ -485,9 +487,11 @@ def _profile(
                 ground = min(max(total / found, bottom), top)
                 at = centre
                 seen[c, b] = True
-                # Off by more than the deadband (the mean of a bin's points is far steadier
-                # than one of them: the deadband is what the slab's bottom can afford).
-                streak = streak + 1 if abs(ground) > deadband else 0
+                # Off by more than the deadband (what the slab's bottom can afford) and than
+                # the noise of the mean: far out a bin holds a point or two, each a centimetre
+                # or more off, and a flat floor's noise would make a profile.
+                band = max(deadband, evidence_sigmas * math.sqrt(spread) / found)
+                streak = streak + 1 if abs(ground) > band else 0
                 evidence[c] = max(evidence[c], streak)
             elif above >= 2 or below >= 2:
                 # An obstacle or a drop and no ground: the ground is held level across it, so
