@@ -298,6 +298,10 @@ PROFILE_BIN = 0.15
 # foot make no profile, and the tables stay).
 PROFILE_DEADBAND = 0.02
 PROFILE_EVIDENCE = 3
+# ... and by this many sigmas of the bin's mean height (its points' noise, depth_noise Z^2
+# along each ray, over their count): 2-3 m out a bin holds a point or two, each a centimetre
+# or more off, and with the deadband alone about one noisy frame of a flat room in ten made
+# a profile, which rebuilt the tables twice (`make bench`'s room stream).
 PROFILE_EVIDENCE_SIGMAS = 3.0
 # Noise sigmas by which the slab's bottom is raised over a ramp rising away from the camera
 # (by the extra its noise lifts readings there: `ground_kernel.slope_margin`). With the
