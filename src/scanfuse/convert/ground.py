@@ -439,7 +439,8 @@ def ground_profile(
     settings: GroundSettings,
 ) -> GroundProfile | None:
     """The ground of this frame where it leaves `plane` (ramps), or None where it does not
-    (by more than `PROFILE_DEADBAND` in `PROFILE_EVIDENCE` bins in a row, in any column);
+    (by more than `PROFILE_DEADBAND` and `PROFILE_EVIDENCE_SIGMAS` of a bin's noise, in
+    `PROFILE_EVIDENCE` bins in a row, in any column);
     `sample` is the camera's (`GroundSample.build`)."""
     if settings.max_slope <= 0.0:
         return None
