@@ -12,20 +12,22 @@ D435 model), then 3 % of the pixels, uniformly at random, read 0 (no measurement
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tests.support.render import box_depth, slope_depth
+from tests.support.room import MOUNTING, WALLS, d435
 
-from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.scan import AngleGrid
-from scanfuse.transforms import Extrinsics, Transform
+from scanfuse.transforms import Transform
+
+if TYPE_CHECKING:
+    from scanfuse.camera import CameraModel
 
 SIZES = ((640, 480), (848, 480), (1280, 720), (1920, 1080))
 CADENCE_SIZE = (1280, 720)  # the size timed at a camera's 30 Hz cadence
-EXTRINSICS = Extrinsics.from_mounting(
-    camera_x=0.1, camera_height=0.45, camera_pitch=math.radians(20.0), lidar_height=0.3
-)
+EXTRINSICS = MOUNTING
 GRID = AngleGrid(-math.pi, 2.0 * math.pi / 1080, 1080)
 NOISE = 0.01  # sigma = NOISE * Z^2, metres
 INVALID = 0.03
@@ -43,9 +45,7 @@ SETTINGS = {
 _LEG = 0.025
 _CHAIR = (1.1, 0.35)  # front-right leg, base frame
 BOXES = (
-    (2.8, 3.0, -4.0, 4.0, 0.0, 2.5),  # front wall
-    (-1.0, 3.0, 1.6, 1.8, 0.0, 2.5),  # left wall
-    (-1.0, 3.0, -2.2, -2.0, 0.0, 2.5),  # right wall
+    *WALLS,
     (1.2, 1.5, -0.6, -0.2, 0.0, 0.12),  # low box
     (2.0, 2.4, -1.4, -0.9, 0.0, 0.3),  # box
     *(
@@ -58,12 +58,7 @@ BOXES = (
 )
 
 
-def camera_for(width: int, height: int) -> CameraModel:
-    """The D435's 87 deg horizontal field of view at this size, square pixels."""
-    focal = (width / 2.0) / math.tan(math.radians(87.0) / 2.0)
-    return CameraModel.from_intrinsics(
-        width, height, focal, focal, (width - 1) / 2.0, (height - 1) / 2.0
-    )
+camera_for = d435  # the D435's 87 deg horizontal field of view at any size
 
 
 def true_depth(camera: CameraModel, *, body_pitch: float = 0.0, ramp: float = 0.0) -> np.ndarray:

@@ -449,26 +449,15 @@ def test_noise_over_a_ramp_rising_ahead_costs_about_what_it_costs_over_a_flat_fl
     assert false <= 0.6 * unraised
 
 
-# A D435 (87 deg across) 0.45 m up, pitched 20 deg, in a room: walls 2.8 m ahead, 1.6 m
-# left and 2.0 m right (the benchmark's room without its furniture).
-ROOM_WALLS = [
-    (2.8, 3.0, -4.0, 4.0, 0.0, 2.5),
-    (-1.0, 3.0, 1.6, 1.8, 0.0, 2.5),
-    (-1.0, 3.0, -2.2, -2.0, 0.0, 2.5),
-]
-
-
 def test_a_flat_floors_noise_makes_no_profile_and_a_ramp_from_2_m_still_does(monkeypatch):
     # Far out a bin of the profile holds a point or two, each a centimetre or more off in
     # height (sigma = 0.01 Z^2 along the ray): with the deadband alone, some frames of a flat
     # floor made a profile (and rebuilt the tables, twice). Off the plane by 3 sigma of the
     # bin's mean as well, none does; a ramp leaves the plane by more than that.
     from scanfuse.convert import ground
-    from scanfuse.transforms import Extrinsics
+    from tests.support import room
 
-    mounting = Extrinsics.from_mounting(
-        camera_x=0.1, camera_height=0.45, camera_pitch=math.radians(20.0), lidar_height=0.3
-    ).base_to_camera_optical
+    mounting = room.MOUNTING.base_to_camera_optical
     prior = GroundPlane.of_mounting(mounting)
 
     def profiled(depth: np.ndarray, camera: CameraModel, prior: GroundPlane) -> bool:
@@ -479,12 +468,9 @@ def test_a_flat_floors_noise_makes_no_profile_and_a_ramp_from_2_m_still_does(mon
     def room_profiles() -> int:
         count = 0
         for width, height in ((848, 480), (1280, 720)):
-            focal = width / 2.0 / math.tan(math.radians(43.5))
-            camera = CameraModel.from_intrinsics(
-                width, height, focal, focal, (width - 1) / 2.0, (height - 1) / 2.0
-            )
-            room = box_depth(camera, mounting, ROOM_WALLS)
-            count += sum(profiled(noisy(room, seed), camera, prior) for seed in range(40))
+            camera = room.d435(width, height)
+            walls = box_depth(camera, mounting, room.WALLS)
+            count += sum(profiled(noisy(walls, seed), camera, prior) for seed in range(40))
         return count
 
     assert room_profiles() == 0
