@@ -1,6 +1,7 @@
 """The ground driven over (issue 25): a pitched LiDAR plane's floor returns are dropped.
 
-A robot drives 4 m over a level floor and then up a 1:8 ramp. Half-way up, its body pitched
+A robot drives 8 m over a level floor and then up a 1:8 ramp (the floor around where it set
+off, which the trail also takes, is forgotten by then). Half-way up, its body pitched
 nose-up by the ramp's 7.1 deg, the LiDAR's plane (0.30 m above the base) runs down behind
 it and meets the level floor it came from. Where it meets it is worked out here from the
 geometry alone; a wall's reading in the same direction, nearer, stands well above it.
@@ -26,7 +27,7 @@ if TYPE_CHECKING:
 GRADE = 1.0 / 8.0
 SLOPE = math.atan(GRADE)
 FOOT = 1.0  # x where the ramp starts
-START = -3.0
+START = -7.0
 LIDAR_HEIGHT = 0.30
 STEP = 0.035  # metres a scan: 0.35 m/s at 10 Hz
 HALF_WIDTH = TrailSettings().half_width
@@ -96,6 +97,32 @@ def test_ground_beside_the_path_counts_only_within_the_half_width():
         level = np.array([[-3.0, side, -height_at(x)]])
         base = level @ rotation  # level = R base, so base = R^T level
         assert trail.on_ground(base, pose, rotation)[0] == expected, behind
+
+
+def test_the_floor_around_where_the_trail_began_is_ground_out_to_the_start_radius():
+    # Parked on a level floor, then 1 m up a 1:8 ramp: a LiDAR pitched by it meets the floor
+    # behind where the robot set off, which it never drove over.
+    radius = TrailSettings().start_radius
+
+    def trail_from(settings: TrailSettings) -> GroundTrail:
+        trail = GroundTrail(settings)
+        for x in np.arange(FOOT - 0.5, FOOT + 1.0, STEP):
+            trail.advance(PlanarPose(float(x), 0.0, 0.0), tilt(pitch_at(x)), 0)
+        return trail
+
+    x = float(np.arange(FOOT - 0.5, FOOT + 1.0, STEP)[-1])
+    pose, rotation = PlanarPose(x, 0.0, 0.0), tilt(pitch_at(x))
+
+    def on_ground(trail: GroundTrail, behind_start: float, aside: float, up: float) -> bool:
+        level = np.array([[FOOT - 0.5 - behind_start - x, aside, up - height_at(x)]])
+        return bool(trail.on_ground(level @ rotation, pose, rotation)[0])
+
+    trail = trail_from(TrailSettings())
+    assert on_ground(trail, 0.8 * radius - 0.5, 0.3 * radius, 0.0)
+    assert not on_ground(trail, 0.8 * radius - 0.5, 0.3 * radius, 0.2)  # 20 cm up: a box
+    assert not on_ground(trail, 1.1 * radius, 0.0, 0.0)  # beyond the radius: not known
+    narrow = trail_from(TrailSettings(start_radius=0.0))  # the half width alone
+    assert not on_ground(narrow, 0.8 * radius - 0.5, 0.3 * radius, 0.0)
 
 
 def test_an_odometry_jump_or_reset_forgets_the_trail():

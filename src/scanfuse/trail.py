@@ -15,9 +15,13 @@ as a corridor's or a ramp's does). A LiDAR reading whose point, tilted the same 
 within `tolerance` of a known cell's ground is the floor (`on_ground`): the stream drops
 it (NaN, no reading), and what a camera or the memory sees there stands.
 
-A reading is dropped only where the robot has been: an obstacle it drove past stands
-above the ground by more than `tolerance` wherever the LiDAR's plane meets it (the plane
-is `lidar_height` above the base), except within `tolerance` of its foot.
+Where the trail begins (the node's start, an odometry reset), the plane the wheels stand on
+is taken out to `start_radius`, not just `half_width`: the robot was parked on that floor,
+and up a 1:8 ramp a LiDAR 0.3 m up meets the level floor 2.4 m back, behind where it set off.
+
+A reading is dropped only where the robot has been (or around where it began): an obstacle
+there stands above the ground by more than `tolerance` wherever the LiDAR's plane meets it
+(the plane is `lidar_height` above the base), except within `tolerance` of its foot.
 """
 
 from __future__ import annotations
@@ -45,12 +49,14 @@ class TrailSettings:
     """`half_width`: metres either side of the base's origin whose ground the trail keeps;
     `cell`: the grid's cell, metres; `length`: metres of path after which a cell is
     forgotten (the height summed along the path drifts); `tolerance`: metres above or
-    below a cell's ground a reading may lie and still be the floor."""
+    below a cell's ground a reading may lie and still be the floor; `start_radius`: metres
+    around where the trail begins whose ground it takes (at most `length` + `half_width`)."""
 
     half_width: float = 1.0
     cell: float = 0.1
     length: float = 8.0
     tolerance: float = 0.05
+    start_radius: float = 4.0
 
     @property
     def side(self) -> int:
@@ -74,9 +80,12 @@ class GroundTrail:
         self._travelled = 0.0
         self._last_write: float | None = None  # the path length at the last write
         self._lowest, self._highest = math.inf, -math.inf  # the ground heights written
-        reach = math.ceil(self.settings.half_width / self.settings.cell)
-        offsets = np.arange(-reach, reach + 1)
-        self._offsets = np.stack(np.meshgrid(offsets, offsets, indexing='ij'), -1).reshape(-1, 2)
+        self._start_radius = min(
+            max(self.settings.start_radius, self.settings.half_width),
+            self.settings.length + self.settings.half_width,
+        )
+        self._offsets = _disc(self.settings.half_width, self.settings.cell)
+        self._start_offsets = _disc(self._start_radius, self.settings.cell)
 
     def clear(self) -> None:
         self._keys[...] = _NO_CELL
@@ -103,11 +112,11 @@ class GroundTrail:
             self.clear()
         self._pose, self._segment = pose, segment
         # Half a cell of travel changes no cell's height by much: write no more often.
-        if (
-            self._last_write is None
-            or self._travelled - self._last_write >= 0.5 * self.settings.cell
-        ):
-            self._write(pose, tilt)
+        if self._last_write is None:
+            self._write(pose, tilt, self._start_radius, self._start_offsets)
+            self._last_write = self._travelled
+        elif self._travelled - self._last_write >= 0.5 * self.settings.cell:
+            self._write(pose, tilt, self.settings.half_width, self._offsets)
             self._last_write = self._travelled
 
     def on_ground(self, points: F64, pose: PlanarPose, tilt: F64) -> npt.NDArray[np.bool_]:
@@ -148,16 +157,18 @@ class GroundTrail:
         forward, sideways = cosine * dx + sine * dy, -sine * dx + cosine * dy
         return float(forward * tilt[2, 0] + sideways * tilt[2, 1])
 
-    def _write(self, pose: PlanarPose, tilt: F64) -> None:
-        """Every cell within `half_width` of the base: the height of the plane the base
-        stands on there, unless a pass nearer to the cell wrote it."""
+    def _write(
+        self, pose: PlanarPose, tilt: F64, radius: float, offsets: npt.NDArray[np.int64]
+    ) -> None:
+        """Every cell within `radius` of the base (`offsets`: `_disc(radius)`): the height
+        of the plane the base stands on there, unless a pass nearer to the cell wrote it."""
         settings = self.settings
         cell = settings.cell
-        ix = np.floor(pose.x / cell).astype(np.int64) + self._offsets[:, 0]
-        iy = np.floor(pose.y / cell).astype(np.int64) + self._offsets[:, 1]
+        ix = np.floor(pose.x / cell).astype(np.int64) + offsets[:, 0]
+        iy = np.floor(pose.y / cell).astype(np.int64) + offsets[:, 1]
         dx, dy = (ix + 0.5) * cell - pose.x, (iy + 0.5) * cell - pose.y
         reach = np.hypot(dx, dy)
-        near = reach <= settings.half_width
+        near = reach <= radius
         ix, iy, dx, dy, reach = ix[near], iy[near], dx[near], dy[near], reach[near]
         # The base's plane: its normal (the base's up axis) in the level frame.
         normal = tilt[:, 2]
@@ -179,3 +190,10 @@ class GroundTrail:
         self._ground[row, column] = ground[take]
         self._reach[row, column] = reach[take]
         self._written[row, column] = self._travelled
+
+
+def _disc(radius: float, cell: float) -> npt.NDArray[np.int64]:
+    """The cell offsets (N x 2) of a square holding a disc of `radius` metres."""
+    reach = math.ceil(radius / cell)
+    offsets = np.arange(-reach, reach + 1)
+    return np.stack(np.meshgrid(offsets, offsets, indexing='ij'), -1).reshape(-1, 2)
