@@ -482,35 +482,6 @@ def test_a_flat_floors_noise_makes_no_profile_and_a_ramp_from_2_m_still_does(mon
     assert room_profiles() > 0
 
 
-@pytest.mark.parametrize('rise', RAMPS.values(), ids=RAMPS.keys())
-def test_the_profile_reads_a_few_rows_a_bin_and_finds_what_every_row_finds(rise, monkeypatch):
-    # Near the camera many image rows see one 15 cm bin of floor: the walk keeps a few.
-    from scanfuse.convert import ground
-
-    prior = GroundPlane.of_mounting(optical_pose())
-
-    def walked(depth: np.ndarray) -> tuple[ground.GroundProfile, np.ndarray]:
-        tracker = GroundTracker(GroundSettings())
-        tracker.update(depth, CAMERA, prior)
-        assert tracker.profile is not None
-        return tracker.profile, ground.GroundSample.build(CAMERA, prior, 1500, 40).profile_rows
-
-    depth = noisy(ramp_depth(rise).astype(np.float64) / 1000.0, seed=0)
-    thinned, rows = walked(depth)
-    monkeypatch.setattr(ground, 'PROFILE_ROWS_PER_BIN', 10**6)
-    every, all_rows = walked(depth)
-    assert all_rows.size == 160
-    # Where each kept row's middle pixel meets the floor, from the camera's pitch and focal
-    # length: no more than 6 rows (and one at the bin's edge) in any bin.
-    depression = PITCH + np.arctan((rows - CAMERA.cy) / CAMERA.fy)
-    ahead = HEIGHT / np.tan(depression[depression > 0.0])
-    per_bin = np.bincount((ahead[ahead < 3.0] / ground.PROFILE_BIN).astype(int))
-    assert per_bin.max() <= 7
-    assert rows.size < 0.7 * all_rows.size
-    assert np.abs(thinned.heights - every.heights).max() <= 0.01
-    assert np.abs(thinned.lows - every.lows).max() <= 0.01
-
-
 def test_the_slope_margin_is_three_sigma_of_the_extra_noise_above_the_ramp():
     from scanfuse.convert.ground_kernel import slope_margin
 

@@ -215,12 +215,8 @@ class GroundSample:
             down = (rays @ prior.vector < 0.0) & np.isfinite(rays).all(axis=1)
         draws = np.random.default_rng(0).random((hypotheses, 3))
         profile_columns, profile_rows = _profile_grid(camera.width, camera.height)
-        x_table, y_table = (c.ravel() for c in camera.normalized_coordinates)
-        profile_rows = _thinned_rows(
-            profile_rows, x_table[profile_rows * camera.width + camera.width // 2],
-            y_table[profile_rows * camera.width + camera.width // 2], prior,
-        )  # fmt: skip
         profile_pixels = (profile_rows[:, None] * camera.width + profile_columns[None, :]).ravel()
+        x_table, y_table = (c.ravel() for c in camera.normalized_coordinates)
         return cls(
             indices=grid[down],
             rays=np.ascontiguousarray(rays[down]),
@@ -295,10 +291,8 @@ def fit_ground(
 # Sampled image columns of the profile, at most; rows: every ROW_STRIDE-th of this many.
 PROFILE_COLUMNS = 32
 PROFILE_ROWS = 160
-# Metres of horizontal distance per bin of the profile, and the most rows (by the prior's
-# floor) its walk reads per bin: at 640x480 the 0.3-0.9 m bins held 67 of 160 rows.
+# Metres of horizontal distance per bin of the profile.
 PROFILE_BIN = 0.15
-PROFILE_ROWS_PER_BIN = 6
 # Metres the profile must leave the plane by, in PROFILE_EVIDENCE bins in a row where ground
 # was seen, to count (below, the plane holds: a flat floor's noise, a bin of an obstacle's
 # foot make no profile, and the tables stay).
@@ -436,32 +430,6 @@ def _profile_grid(width: int, height: int) -> tuple[npt.NDArray[np.int64], ...]:
     row_step = max(1, height // PROFILE_ROWS)
     rows = np.arange(height - 1, -1, -row_step, dtype=np.int64)
     return columns, rows
-
-
-def _thinned_rows(
-    rows: npt.NDArray[np.int64],
-    x_n: npt.NDArray[np.float32],
-    y_n: npt.NDArray[np.float32],
-    prior: GroundPlane,
-) -> npt.NDArray[np.int64]:
-    """`rows` (nearest first) but those whose floor, under the middle column's rays `x_n`,
-    `y_n` and `prior`'s plane, lies within PROFILE_BIN / PROFILE_ROWS_PER_BIN of the last kept
-    row's: near the camera many rows see one bin, and they would cost the walk most of its
-    time (and its memory traffic) for a mean that a few give as well."""
-    normal = np.asarray(prior.normal)
-    rays = np.stack([x_n, y_n, np.ones_like(x_n)], axis=1).astype(np.float64)
-    fall = rays @ normal
-    level = np.sqrt(np.maximum((rays * rays).sum(axis=1) - fall * fall, 0.0))
-    with np.errstate(divide='ignore', invalid='ignore'):
-        floor = np.where(fall < 0.0, prior.offset * level / -fall, np.inf)
-    kept, last = [], -np.inf
-    for index, distance in enumerate(floor.tolist()):
-        if math.isinf(distance):
-            kept.append(index)  # no floor under the prior: a ramp, a pitch may bring it
-        elif distance >= last + PROFILE_BIN / PROFILE_ROWS_PER_BIN:
-            kept.append(index)
-            last = distance
-    return rows[kept]
 
 
 def ground_profile(
