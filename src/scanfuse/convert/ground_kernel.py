@@ -389,8 +389,7 @@ def _profile(
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
 
     `x_n`, `y_n` are the rays of the grid's pixels, row by row: the j-th row's c-th column's
-    at j * columns.size + c. Each column's pixels (`rows`, nearest first) become points (but
-    for lines of sight that pass over any ground within the reach: never read); the bins
+    at j * columns.size + c. Each column's pixels (`rows`, nearest first) become points; the bins
     are walked outwards from the camera's foot, where the ground is the plane (height 0). A
     bin's ground is the mean height of its points that may be ground (`_candidate`: within
     tan_slope * run and their noise of the last ground, run their horizontal distance from it),
@@ -421,7 +420,6 @@ def _profile(
     allowed = np.empty((columns_used, count))
     slot = np.full((columns_used, count), -1, np.int64)
     seen = np.zeros((columns_used, bins), np.bool_)
-    reach = bins * bin_size
     for j in range(count):
         for c in range(columns_used):
             column = columns[c]
@@ -430,14 +428,6 @@ def _profile(
             if not (
                 0 <= column < width and 0 <= index < depth.size and ray < min(x_n.size, y_n.size)
             ):
-                continue
-            # A line of sight that passes over the steepest floor rising from the camera's
-            # foot all the way to the reach meets no ground within it (only an obstacle's
-            # upper part, whose foot lower lines see): its pixel is not read, and a frame's
-            # rows above the horizon cost no memory traffic.
-            fall = plane[0] * x_n[ray] + plane[1] * y_n[ray] + plane[2]
-            level = math.sqrt(max(x_n[ray] ** 2 + y_n[ray] ** 2 + 1.0 - fall * fall, 0.0))
-            if plane[3] * level + reach * fall > (tan_slope * reach + FACE) * level:
                 continue
             z = np.float64(depth[index]) * scale
             if not z > 0.0:
@@ -449,7 +439,7 @@ def _profile(
             r = math.sqrt(along * along + across * across)
             if not (r < bins * bin_size and math.isfinite(h)):  # also NaN, before int()
                 continue
-            vertical = abs(fall)
+            vertical = abs(plane[0] * x_n[ray] + plane[1] * y_n[ray] + plane[2])
             radius[c, j], height[c, j] = r, h
             slot[c, j] = min(int(r / bin_size), bins - 1)
             allowed[c, j] = noise * z * z * vertical  # 1 sigma of the point's height
