@@ -204,6 +204,7 @@ def test_loop_stops_cleanly_on_ctrl_c_with_its_summary_over_dds(tmp_path):
     env = with_repository_on_path({**os.environ, 'ROS_DOMAIN_ID': str(domain_id())})
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PYTHONUNBUFFERED'] = '1'
+    env['PYTHONFAULTHANDLER'] = '1'
     heard, ready, stop = tmp_path / 'heard.mcap', tmp_path / 'ready', tmp_path / 'stop'
     record = [sys.executable, '-m', 'tests.support.loopback', 'record', str(heard)]
     listener = subprocess.Popen(
@@ -240,7 +241,13 @@ def test_loop_stops_cleanly_on_ctrl_c_with_its_summary_over_dds(tmp_path):
         # machine can take seconds: the listener may miss the first loops.
         time.sleep(6.0)
         player.send_signal(signal.SIGINT)  # what Ctrl-C in its terminal sends
-        out, err = player.communicate(timeout=30)
+        try:
+            out, err = player.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            # Where it hangs: PYTHONFAULTHANDLER prints every thread's Python stack on SIGABRT.
+            player.send_signal(signal.SIGABRT)
+            out, err = player.communicate(timeout=30)
+            pytest.fail(f'play did not exit 30 s after Ctrl-C; its stderr:\n{err}')
     finally:
         if player is not None and player.poll() is None:
             player.kill()
