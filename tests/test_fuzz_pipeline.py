@@ -63,7 +63,9 @@ TRACE = os.environ.get('SCANFUSE_FUZZ_TRACE')
 HOSTILE_FLOATS = [math.nan, math.inf, -math.inf, 0.0, -1.0, 1e-300, 1e30, 1e39, -1e39, 1e300]
 # Outcomes in the child: 'fused', or the class and first words of the error.
 OUTCOMES: Counter[str] = Counter()
-FLOOD = [np.nan, np.inf, -np.inf, 0.0, -1.0, 1e30, 65535.0]
+# 1e30 as float32 holds it: hypothesis refuses an element the array's dtype would round
+# (float32 arrays, under numpy 1.x as on Humble's Ubuntu 22.04).
+FLOOD = [np.nan, np.inf, -np.inf, 0.0, -1.0, float(np.float32(1e30)), 65535.0]
 
 
 _ONCE_IN_40 = [False] * 19 + [True] + [False] * 20
