@@ -22,7 +22,13 @@ from scanfuse.scan import AngleGrid, Scan
 from scanfuse.scan_matching import Refusal
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import Transform
-from tests.support.render import Box, camera_in_world, depth_image, square_room_ranges
+from tests.support.render import (
+    Box,
+    camera_in_world,
+    depth_image,
+    square_room_ranges,
+    tilted_room_ranges,
+)
 
 NS = 1_000_000_000
 CAMERA = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='optical')
@@ -311,7 +317,8 @@ OVER_COUNT = 1.03  # wheel slip: odometry reports 3 % more turn than the robot m
 class DriftingRobot(Robot):
     """Turns in place while its wheel odometry over-counts the turn; its LiDAR (10 Hz, the
     robot's true heading) sees the room's walls, 0.3 m up, over the box. `turning_pitch`:
-    what an IMU says the base is pitched by while it turns (0: no IMU)."""
+    the base's pitch while it turns, as its IMU says and its LiDAR's plane shows (0: level,
+    no IMU)."""
 
     def __init__(self, stream: FusionStream, world: list[Box], turning_pitch: float = 0.0):
         super().__init__(stream, world)
@@ -320,7 +327,12 @@ class DriftingRobot(Robot):
 
     def room_scan(self) -> Scan:
         empty = lidar(self.now)
-        ranges = square_room_ranges(ROOM_OFFSET, self.true_yaw, empty.angles(), half=3.0)
+        if self.turning_pitch:
+            tilt = Transform.from_rpy(0.0, self.turning_pitch, 0.0).rotation_matrix
+            base = (*ROOM_OFFSET, self.true_yaw)
+            ranges = tilted_room_ranges(base, tilt, empty.angles(), height=0.3, half=3.0)
+        else:
+            ranges = square_room_ranges(ROOM_OFFSET, self.true_yaw, empty.angles(), half=3.0)
         return empty.with_ranges(ranges.astype(np.float32))
 
     def turn_to(self, yaw: float, seconds: float) -> None:
@@ -377,11 +389,25 @@ def test_scan_matching_keeps_the_box_at_its_true_bearing_when_odometry_over_coun
     assert stream.counts.drift_refused == 0
 
 
-def test_a_lidar_tilted_on_a_ramp_is_not_matched_and_the_memory_follows_odometry():
-    # The same turn, the IMU saying the base is pitched as on a 1:8 ramp (7.1 degrees): the
-    # LiDAR's plane would cut the floor and the walls at other heights than level.
+def test_a_lidar_tilted_on_a_ramp_is_matched_levelled_by_the_imu_and_the_box_stays_put():
+    # The same turn on a 1:8 ramp (the base pitched 7.1 degrees, as the IMU says): the
+    # LiDAR's plane meets the floor behind and slices the walls higher ahead; levelled by
+    # the IMU's pitch, every scan of the turn is matched as on the level.
     stream = FusionStream(config())
-    robot = DriftingRobot(stream, [BOX], turning_pitch=math.atan(1 / 8))
+    robot = DriftingRobot(stream, [BOX], turning_pitch=-math.atan(1 / 8))
+    robot.scan()
+    robot.turn_to(math.pi, 2.0)
+    behind = robot.scan(camera=False)
+    assert stream.counts.drift_matched >= 20
+    assert Refusal.TILTED not in stream.drift.refused
+    offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
+    assert abs(offset) <= 2 * 2 * math.pi / READINGS
+
+
+def test_a_lidar_tilted_beyond_levelling_is_not_matched_and_the_memory_follows_odometry():
+    # Pitched 15 degrees (beyond `max_levelled_tilt`, 12): not matched, even levelled.
+    stream = FusionStream(config())
+    robot = DriftingRobot(stream, [BOX], turning_pitch=-math.radians(15.0))
     robot.scan()
     robot.turn_to(math.pi, 2.0)
     behind = robot.scan(camera=False)

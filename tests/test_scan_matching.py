@@ -28,11 +28,12 @@ from scanfuse.scan_matching import (
     MatchSettings,
     Refusal,
     RelativePose,
+    levelled,
     match,
     reference,
 )
 from scanfuse.transforms import Transform
-from tests.support.render import square_room_ranges
+from tests.support.render import square_room_ranges, tilted_room_ranges
 
 READINGS = 1080
 INCREMENT = 2 * math.pi / READINGS
@@ -289,7 +290,8 @@ def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference
     assert tilted.refused is Refusal.TILTED
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)  # odometry alone meanwhile
     assert drift.refused == {Refusal.TILTED: 1}
-    # Level again (up to `max_tilt`): the first scan is a new reference, the next matches it.
+    # (No IMU's roll and pitch to level it by.) Level again (up to `max_tilt`): the first
+    # scan is a new reference, the next matches it.
     level = drift.settings.max_tilt
     assert drift.update(room(base_in_room(true)), odometry, mount, tilt=level) is None
     true, odometry = PlanarPose(0.0, 0.0, 0.4), PlanarPose(0.0, 0.0, 0.4 * OVER_COUNT)
@@ -383,3 +385,68 @@ def test_a_scene_whose_matches_all_get_worse_is_refused_only_until_the_median_fo
     # The window of 16 holds 12 quiet residuals: the median turns once 9 noisy ones are in.
     assert verdicts[0] is Refusal.DISTORTED
     assert verdicts[9:] == [None] * 7
+
+
+# ------------------------------------------------------------ a tilted plane, levelled
+
+LIDAR_HEIGHT = 0.3
+RAMP_PITCH = math.atan(1 / 8)  # a 1:8 ramp: 7.1 degrees
+
+
+def pitched(angle: float) -> np.ndarray:
+    """The base's axes in a level frame of its heading, pitched by `angle` (REP-103: a
+    positive pitch turns the nose down)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def tilted_room(base: PlanarPose, tilt: np.ndarray, noise: float = 0.0, seed: int = 0) -> Scan:
+    """The LiDAR 0.3 m up on a base at `base` (room frame) tilted by `tilt`."""
+    ranges = tilted_room_ranges(
+        (base.x, base.y, base.yaw), tilt, ANGLES, height=LIDAR_HEIGHT, half=HALF
+    )
+    return lidar_scan(ranges + np.random.default_rng(seed).normal(0.0, noise, READINGS))
+
+
+def test_a_pitched_plane_levelled_gives_the_level_scan_without_the_floor():
+    tilt = pitched(-RAMP_PITCH)  # nose up, as climbing the ramp
+    mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    scan = tilted_room(START, tilt)
+    floor_hits = int(np.count_nonzero(np.abs(scan.ranges - room(START).ranges) > 0.05))
+    assert floor_hits > 50  # behind the base, the plane meets the floor 2.4 m off
+    level = levelled(scan, tilt, mount)
+    # Each reading's point where it lies in the room, seen from the LiDAR's mounted place
+    # over the base's origin (the tilted LiDAR stands 3.7 cm behind it: 0.3 m x sin 7.1 deg).
+    expected = room(START).ranges
+    finite = np.isfinite(level.ranges)
+    assert np.count_nonzero(finite) > 0.8 * (READINGS - floor_hits)
+    # On its wall, within a slot's bearing (0.17 degrees); no floor left.
+    assert np.max(np.abs(level.ranges[finite] - expected[finite])) < 0.02
+
+
+def test_on_a_ramp_the_imus_tilt_lets_each_scan_be_matched_levelled():
+    drift = DriftCorrection()
+    mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    tilt = pitched(-RAMP_PITCH)
+    drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)
+    # Turning on the ramp, odometry over-counting: every scan matched, the turn's true.
+    for k in range(1, 5):
+        true = PlanarPose(0.0, 0.0, 0.1 * k)
+        odometry = PlanarPose(0.0, 0.0, true.yaw * OVER_COUNT)
+        scan = tilted_room(base_in_room(true), tilt, noise=0.005, seed=k)
+        result = drift.update(scan, odometry, mount, tilt=RAMP_PITCH, base_tilt=tilt)
+        assert result is not None
+        assert result.accepted, result.refused
+    assert drift.corrected(odometry).yaw == pytest.approx(0.4, abs=2e-3)
+    assert not drift.refused
+    # Steeper than `max_levelled_tilt`: not matched, even with the tilt known.
+    steep = pitched(-math.radians(15.0))
+    refused = drift.update(
+        tilted_room(base_in_room(true), steep),
+        odometry,
+        mount,
+        tilt=math.radians(15.0),
+        base_tilt=steep,
+    )
+    assert refused is not None
+    assert refused.refused is Refusal.TILTED

@@ -68,7 +68,7 @@ class Refusal(str, Enum):
     YAW_UNOBSERVABLE = 'the scene does not fix the turn (no walls across the view)'
     IMPLAUSIBLE = 'the correction is larger than odometry can plausibly be wrong by'
     DISTORTED = 'the residual is far above the recent matches (scan swept while wheels slipped)'
-    TILTED = "the LiDAR's plane is tilted (a ramp, a sill, braking): it may cut the floor"
+    TILTED = "the LiDAR's plane is tilted beyond what levelling it takes (or no IMU says how)"
 
 
 @dataclass(frozen=True)
@@ -88,7 +88,9 @@ class MatchSettings:
     turn_floor: float = 0.1  # radians, plus this: wheels slip that much when a turn reverses
     shift_share: float = 0.2  # a translation correction: this share of the move
     shift_floor: float = 0.1  # metres, plus this
-    max_tilt: float = math.radians(2.0)  # radians: a plane tilted further is not matched
+    max_tilt: float = math.radians(2.0)  # radians: a plane tilted further is levelled first
+    # Radians: a plane tilted further is not matched even levelled (a 1:8 ramp is 7.1).
+    max_levelled_tilt: float = math.radians(12.0)
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
@@ -99,7 +101,7 @@ class MatchSettings:
             raise InputError(msg)
         for name in (
             'gate', 'gate_floor', 'huber', 'max_rms', 'min_information',
-            'turn_floor', 'shift_floor', 'max_tilt',
+            'turn_floor', 'shift_floor', 'max_tilt', 'max_levelled_tilt',
         ):  # fmt: skip
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -176,6 +178,42 @@ def _points_loop(
 
 
 _POINTS = compiled(_points_loop)
+
+
+# Metres above the base's origin (its ground) that a levelled reading must stand: lower ones
+# are the floor, which a tilted plane meets (`levelled`).
+LEVELLED_FLOOR = 0.05
+
+
+def levelled(scan: Scan, tilt: F64, base_to_laser: Transform) -> Scan:
+    """`scan`, taken with the base tilted by `tilt` (3x3: the base's axes in a level frame of
+    the same heading, an IMU's roll and pitch), as a level LiDAR at `base_to_laser` would
+    have it: each reading's point placed in the level frame, readings lower than
+    `LEVELLED_FLOOR` above the base's origin left out (the floor), the rest put in the slot
+    of their horizontal bearing, the nearest per slot. Upright walls stay where they are: a
+    tilted plane slices them at other heights, and makes them longer along the tilt."""
+    x, y = points(scan)
+    sensor = base_to_laser.matrix
+    p = sensor[:3, :3] @ np.vstack([x, y, np.zeros_like(x)]) + sensor[:3, 3:4]
+    level = tilt @ p
+    # Back into the level sensor's frame: its mounting's heading, at its mounted place.
+    yaw = math.atan2(sensor[1, 0], sensor[0, 0])
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    dx, dy = level[0] - sensor[0, 3], level[1] - sensor[1, 3]
+    hx, hy = cos * dx + sin * dy, -sin * dx + cos * dy
+    with np.errstate(invalid='ignore'):
+        keep = np.isfinite(hx) & (level[2] >= LEVELLED_FLOOR)
+    bearing = np.arctan2(hy[keep], hx[keep])
+    reach = np.hypot(hx[keep], hy[keep])
+    count = len(scan)
+    slot = np.round((bearing - scan.angle_min) / scan.angle_increment).astype(np.int64)
+    full = count * abs(scan.angle_increment) >= TWO_PI - 0.5 * abs(scan.angle_increment)
+    slot = np.mod(slot, count) if full else slot
+    inside = (slot >= 0) & (slot < count)
+    ranges = np.full(count, np.inf)
+    np.minimum.at(ranges, slot[inside], reach[inside])
+    ranges[~np.isfinite(ranges)] = np.nan
+    return scan.with_ranges(ranges.astype(np.float32))
 
 
 def points(scan: Scan) -> tuple[F64, F64]:
@@ -472,12 +510,15 @@ class DriftCorrection:
     odometry's move and C stays where it was. A refused match keeps C and starts a new
     reference at the current scan.
 
-    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is not matched: C is
-    kept and the next level scan starts a new reference. Tilted, the plane of a LiDAR 0.3 m
-    up meets the floor 8.6 m off at 2 degrees and 2.4 m off at 7 (a 1:8 ramp), and it
-    slices the walls at other heights than the reference did; on the simulator's ramps,
-    matching such scans moved the corrected pose 0.13 m along the ramp's corridor within
-    one turn at its crest.
+    A scan whose plane is tilted beyond `max_tilt` (an IMU's word) is levelled first
+    (`levelled`): tilted, the plane of a LiDAR 0.3 m up meets the floor 8.6 m off at 2
+    degrees and 2.4 m off at 7 (a 1:8 ramp), and it slices the walls at other heights than
+    the reference did; on the simulator's ramps, matching such scans as they were moved the
+    corrected pose 0.13 m along the ramp's corridor within one turn at its crest. Levelled
+    by the IMU's roll and pitch, the floor is left out and the upright walls stand where a
+    level LiDAR would see them, so the turns the wheels slip on a ramp are matched away as
+    on the level. Beyond `max_levelled_tilt`, or with no IMU, the scan is not matched: C
+    is kept and the next level scan starts a new reference.
     """
 
     def __init__(self, settings: MatchSettings | None = None) -> None:
@@ -501,14 +542,26 @@ class DriftCorrection:
         return self.correction.compose(pose)
 
     def update(
-        self, scan: Scan, base: PlanarPose, base_to_laser: Transform, *, tilt: float = 0.0
+        self,
+        scan: Scan,
+        base: PlanarPose,
+        base_to_laser: Transform,
+        *,
+        tilt: float = 0.0,
+        base_tilt: F64 | None = None,
     ) -> Match | None:
         """Take the LiDAR `scan` (every beam at its stamp) with the base's odometry pose
         `base` at that stamp and its plane's `tilt` from level (radians; 0: level or
-        unknown). Returns the match (None: the first scan, a reference)."""
+        unknown); `base_tilt`, the base's roll and pitch (`levelled`), lets a plane tilted
+        beyond `max_tilt` be matched levelled. Returns the match (None: the first scan, a
+        reference)."""
         if not base.is_finite():
             msg = f'drift correction needs a finite odometry pose, got {base}'
             raise InputError(msg)
+        settings = self.settings
+        if settings.max_tilt < tilt <= settings.max_levelled_tilt and base_tilt is not None:
+            scan = levelled(scan, base_tilt, base_to_laser)
+            tilt = 0.0
         if not tilt <= self.settings.max_tilt:
             self._keyframe = None
             self.refused[Refusal.TILTED] = self.refused.get(Refusal.TILTED, 0) + 1

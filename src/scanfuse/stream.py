@@ -1287,8 +1287,13 @@ class FusionStream(Generic[T]):
         Without a LiDAR there are no walls to match: odometry alone."""
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
+        base_tilt = self.imu.tilt_at(scan.stamp_ns)
         result = self.drift.update(
-            scan, base, base_to_laser, tilt=self._plane_tilt(scan.stamp_ns, base_to_laser)
+            scan,
+            base,
+            base_to_laser,
+            tilt=self._plane_tilt(scan.stamp_ns, base_to_laser),
+            base_tilt=None if base_tilt is None else base_tilt.rotation_matrix,
         )
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1

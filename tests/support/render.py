@@ -133,6 +133,30 @@ def square_room_ranges(origin, yaw: float, angles: np.ndarray, half: float = 2.0
     return np.minimum(np.abs(tx), np.abs(ty))
 
 
+def tilted_room_ranges(
+    base: tuple[float, float, float],
+    tilt: np.ndarray,
+    angles: np.ndarray,
+    *,
+    height: float,
+    half: float = 2.0,
+) -> np.ndarray:
+    """Ranges of a LiDAR `height` up on a base at `base` (x, y, yaw; its origin on the floor)
+    tilted by `tilt` (3x3: the base's axes in a level frame of its heading), in the square
+    room of upright walls x, y = +-half: each beam at `angles` runs to the walls or, pointing
+    down, to the floor z = 0, whichever it meets first."""
+    x, y, yaw = base
+    origin = tilt @ np.array([0.0, 0.0, height])
+    beams = tilt @ np.vstack([np.cos(angles), np.sin(angles), np.zeros(angles.size)])
+    c, s = math.cos(yaw), math.sin(yaw)
+    at = (x + c * origin[0] - s * origin[1], y + s * origin[0] + c * origin[1])
+    across = np.hypot(beams[0], beams[1])
+    walls = square_room_ranges(at, yaw, np.arctan2(beams[1], beams[0]), half=half) / across
+    with np.errstate(divide='ignore'):
+        floor = np.where(beams[2] < 0.0, origin[2] / -beams[2], np.inf)
+    return np.minimum(walls, floor)
+
+
 def slope_depth(
     camera: CameraModel,
     optical_pose: Transform,
