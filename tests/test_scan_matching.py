@@ -424,6 +424,38 @@ def test_a_pitched_plane_levelled_gives_the_level_scan_without_the_floor():
     assert np.max(np.abs(level.ranges[finite] - expected[finite])) < 0.02
 
 
+@pytest.mark.parametrize(
+    ('first', 'turn'), [(0.75 * math.pi, -1.0), (0.0, 1.0)], ids=['clockwise', 'from-0-to-270']
+)
+def test_a_270_degree_scan_levelled_keeps_its_own_slots(first, turn):
+    # 810 readings (270 degrees): sweeping clockwise from +135 degrees (an increment below
+    # 0, as a LiDAR mounted upside down), or anticlockwise from 0 to 270 degrees, past the
+    # +-180 where a bearing's sign flips.
+    tilt = pitched(RAMP_PITCH)  # nose down, as going down the ramp: the floor ahead
+    mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    angles = first + turn * INCREMENT * np.arange(810)
+    ranges = tilted_room_ranges(
+        (START.x, START.y, START.yaw), tilt, angles, height=LIDAR_HEIGHT, half=HALF
+    )
+    scan = Scan(
+        angle_min=float(angles[0]),
+        angle_max=float(angles[-1]),
+        angle_increment=turn * INCREMENT,
+        range_min=0.1,
+        range_max=12.0,
+        ranges=ranges.astype(np.float32),
+        frame_id='laser',
+    )
+    level = levelled(scan, tilt, mount)
+    expected = square_room_ranges((START.x, START.y), START.yaw, angles, half=HALF)
+    finite = np.isfinite(level.ranges)
+    # Pitched nose down, every beam pointing backwards rises: it meets a wall, and its
+    # reading lands in a slot of the scan's own.
+    backwards = np.cos(angles) < 0.0
+    assert np.count_nonzero(finite & backwards) > 0.9 * np.count_nonzero(backwards)
+    assert np.max(np.abs(level.ranges[finite] - expected[finite])) < 0.02
+
+
 def test_on_a_ramp_the_imus_tilt_lets_each_scan_be_matched_levelled():
     drift = DriftCorrection()
     mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))

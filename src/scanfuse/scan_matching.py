@@ -206,8 +206,12 @@ def levelled(scan: Scan, tilt: F64, base_to_laser: Transform) -> Scan:
     bearing = np.arctan2(hy[keep], hx[keep])
     reach = np.hypot(hx[keep], hy[keep])
     count = len(scan)
-    slot = np.round((bearing - scan.angle_min) / scan.angle_increment).astype(np.int64)
-    full = count * abs(scan.angle_increment) >= TWO_PI - 0.5 * abs(scan.angle_increment)
+    # Radians from angle_min the way the scan turns (clockwise when its increment is
+    # negative), from half a slot before it: a slot's bearing, whatever angle_min's turn.
+    step, turn = abs(scan.angle_increment), math.copysign(1.0, scan.angle_increment)
+    along = np.mod(turn * (bearing - scan.angle_min) + step / 2, TWO_PI) - step / 2
+    slot = np.round(along / step).astype(np.int64)
+    full = count * step >= TWO_PI - 0.5 * step
     slot = np.mod(slot, count) if full else slot
     inside = (slot >= 0) & (slot < count)
     ranges = np.full(count, np.inf)
