@@ -566,7 +566,7 @@ class DriftCorrection:
         if settings.max_tilt < tilt <= settings.max_levelled_tilt and base_tilt is not None:
             scan = levelled(scan, base_tilt, base_to_laser)
             tilt = 0.0
-        if not tilt <= self.settings.max_tilt:
+        if not tilt <= settings.max_tilt:
             self._keyframe = None
             self.refused[Refusal.TILTED] = self.refused.get(Refusal.TILTED, 0) + 1
             self.last = Match(RelativePose(0.0, 0.0, 0.0), Refusal.TILTED, 0, math.nan, 0)

@@ -128,6 +128,14 @@ def seconds_to_ns(seconds: float) -> int:
     return round(seconds * NANOSECONDS)
 
 
+def plane_tilt(tilt: Transform, base_to_laser: Transform) -> float:
+    """Radians between the plane of a LiDAR mounted at `base_to_laser` and level, the base
+    tilted by `tilt` (an IMU's roll and pitch)."""
+    rotation = tilt.rotation_matrix @ base_to_laser.rotation_matrix
+    # The LiDAR's axis against gravity; a LiDAR mounted upside down sweeps the same plane.
+    return math.acos(min(1.0, abs(float(rotation[2, 2]))))
+
+
 class Passed(str, Enum):
     """Why a scan left without the camera."""
 
@@ -1287,13 +1295,13 @@ class FusionStream(Generic[T]):
         Without a LiDAR there are no walls to match: odometry alone."""
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
-        base_tilt = self.imu.tilt_at(scan.stamp_ns)
+        tilt = self.imu.tilt_at(scan.stamp_ns)  # None: no IMU sample then, taken as level
         result = self.drift.update(
             scan,
             base,
             base_to_laser,
-            tilt=self._plane_tilt(scan.stamp_ns, base_to_laser),
-            base_tilt=None if base_tilt is None else base_tilt.rotation_matrix,
+            tilt=0.0 if tilt is None else plane_tilt(tilt, base_to_laser),
+            base_tilt=None if tilt is None else tilt.rotation_matrix,
         )
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
@@ -1305,16 +1313,6 @@ class FusionStream(Generic[T]):
         elif result is not None:
             self.counts.drift_matched += 1
         return self.drift.corrected(base)
-
-    def _plane_tilt(self, stamp_ns: int, base_to_laser: Transform) -> float:
-        """Radians between the plane of a LiDAR mounted at `base_to_laser` and level, by
-        the IMU's tilt of the base at `stamp_ns` (0.0: no IMU sample then, taken as level)."""
-        tilt = self.imu.tilt_at(stamp_ns)
-        if tilt is None:
-            return 0.0
-        rotation = tilt.rotation_matrix @ base_to_laser.rotation_matrix
-        # The LiDAR's axis against gravity; a LiDAR mounted upside down sweeps the same plane.
-        return math.acos(min(1.0, abs(float(rotation[2, 2]))))
 
     def _clear_seen(
         self,
