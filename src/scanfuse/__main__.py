@@ -2,13 +2,14 @@
 
 SIGTERM ends the command with exit code 143 from its first instant: until a command takes
 it over (`scanfuse.cli.terminate_as_interrupt`, which removes what it was writing), while
-Python still imports the command line, numpy and the compiled kernels, it raises SystemExit
+Python still imports the command line, numpy and the compiled kernels, it exits at once
 (there is nothing to clean up yet). Without it a process stopped in its first second died
 of the signal (-15) instead of exiting.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from typing import TYPE_CHECKING
@@ -18,7 +19,11 @@ if TYPE_CHECKING:
 
 
 def _exit_terminated(signum: int, _frame: FrameType | None) -> None:
-    raise SystemExit(128 + signum)
+    # Not SystemExit: raised inside a class's creation while a module imports, Python 3.11
+    # wraps it in a RuntimeError (a traceback and exit code 1), and a finaliser drops it.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(128 + signum)
 
 
 def main() -> int:

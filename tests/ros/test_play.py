@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 pytest.importorskip('rclpy')
 
 from scanfuse.app.demo import live_commands
-from scanfuse.ros.play import PlayError, PlayOptions
+from scanfuse.ros.play import PlayError, PlayOptions, StopRequest
 from tests.support.loopback_domains import domain_id
 
 
@@ -263,3 +263,12 @@ def test_loop_stops_cleanly_on_ctrl_c_with_its_summary_over_dds(tmp_path):
         received = sum(1 for _ in reader.messages())
     # Over DDS a listener got more than one loop's scans, and never more than were sent.
     assert counts['/scan'] < received <= published['/scan']
+
+
+def test_the_first_ctrl_c_asks_play_to_stop_and_the_second_interrupts_it():
+    stop = StopRequest()
+    assert not stop.requested
+    stop(2, None)  # SIGINT: the play loop reads the request between messages
+    assert stop.requested
+    with pytest.raises(KeyboardInterrupt):
+        stop(2, None)

@@ -10,7 +10,9 @@ LaserScans the latency from publishing the scan with the same stamp.
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -43,6 +45,23 @@ SENSOR_TYPES = frozenset({LASER_SCAN, IMAGE, CAMERA_INFO, POINT_CLOUD})
 PROGRESS_PERIOD_S = 0.5
 # Seconds without a new subscriber on the recording's sensor topics before play starts.
 SUBSCRIPTIONS_SETTLE = 1.0
+
+
+class StopRequest:
+    """Ctrl-C as a request that the play loop reads between messages: the first stops the
+    playing (and `--loop`) cleanly, with the summary; a second one raises KeyboardInterrupt.
+
+    Raised as KeyboardInterrupt at any point, the first Ctrl-C was lost now and then (one run
+    in a few of `make test`): `--loop` played on, its stack in rclpy's wait on the DDS wait
+    set. A flag set by the handler cannot be lost."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, _signum: int, _frame: object) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
 
 
 class PlayError(ScanfuseError):
@@ -114,11 +133,16 @@ class Player:
     """The recording's publishers and the listeners on one rclpy node."""
 
     def __init__(
-        self, recording: Recording, options: PlayOptions, say: Callable[[str], None]
+        self,
+        recording: Recording,
+        options: PlayOptions,
+        say: Callable[[str], None],
+        stop: StopRequest | None = None,
     ) -> None:
         self.recording = recording
         self.options = options
         self.say = say
+        self.stop = stop or StopRequest()
         self.node = rclpy.create_node('scanfuse_play')
         self.report = PlaybackReport(recording.path, options.rate)
         self.publishers: dict[str, Any] = {}
@@ -164,6 +188,8 @@ class Player:
         deadline = time.monotonic() + self.options.wait
         missing = list(self.options.listen)
         while missing := [name for name in missing if self.node.count_publishers(name) == 0]:
+            if self.stop.requested:
+                return
             if time.monotonic() > deadline:
                 msg = (
                     f'nothing publishes {", ".join(missing)} after {self.options.wait:g} s; '
@@ -180,6 +206,8 @@ class Player:
         heard: set[str] = set()
         settled = deadline
         while time.monotonic() < min(deadline, settled) and len(heard) < len(sensors):
+            if self.stop.requested:
+                return
             self.spin_for(0.05)
             now = {n for n in sensors if self.publishers[n].get_subscription_count() > 0}
             if now != heard:
@@ -197,9 +225,11 @@ class Player:
         messages = self.recording.messages(list(self.publishers), options.start)
         for sent, message in enumerate(messages):
             due = first + message.offset_ns / NANOSECONDS / options.rate
-            while (delay := due - time.monotonic()) > 0:
+            while (delay := due - time.monotonic()) > 0 and not self.stop.requested:
                 rclpy.spin_once(self.node, timeout_sec=min(delay, 0.01))
                 progress.show(message.offset_ns / NANOSECONDS, sent, self.report.heard, final=False)
+            if self.stop.requested:
+                return
             msgtype = self.recording.topics[message.topic].msgtype
             if msgtype == LASER_SCAN and (stamp := scan_stamp(message.cdr, msgtype)) is not None:
                 self.published_at[stamp] = time.monotonic()
@@ -210,11 +240,16 @@ class Player:
     def run(self) -> PlaybackReport:
         self.wait_for_node()
         progress = _Progress(self.recording.duration - self.options.start, self.options.rate)
+        stopped = self.stop.requested
         try:
-            self.play_once(progress)
-            while self.options.loop:
+            if not stopped:
                 self.play_once(progress)
+            while self.options.loop and not self.stop.requested:
+                self.play_once(progress)
+            stopped = self.stop.requested
         except (KeyboardInterrupt, ExternalShutdownException):
+            stopped = True
+        if stopped:
             self.say('stopped')
         if ok():
             # Let the node answer the last messages, and best-effort samples leave.
@@ -230,11 +265,16 @@ class Player:
 def play_bag(bag: Path, options: PlayOptions, say: Callable[[str], None]) -> PlaybackReport:
     """Publish `bag` on DDS as recorded; what was published and heard back."""
     recording = read_recording(bag)
-    # Without rclpy's handlers Ctrl-C is Python's KeyboardInterrupt, which ends a --loop
-    # cleanly with the summary (rclpy's own handler may end the process before it prints).
+    # Not rclpy's handlers (they may end the process before the summary prints): Ctrl-C is a
+    # `StopRequest`, which ends a --loop cleanly with the summary.
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest()
+    # Signal handlers can only be set from the main thread (a caller's worker thread keeps
+    # Python's: Ctrl-C as KeyboardInterrupt).
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, stop) if main else None
     try:
-        player = Player(recording, options, say)
+        player = Player(recording, options, say, stop)
         try:
             say(
                 f'playing {bag} ({recording.duration:.1f} s, {len(player.publishers)} topics) '
@@ -244,5 +284,7 @@ def play_bag(bag: Path, options: PlayOptions, say: Callable[[str], None]) -> Pla
         finally:
             player.close()
     finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
         if ok():
             rclpy.shutdown()
