@@ -13,6 +13,7 @@ import itertools
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -325,7 +326,7 @@ def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
     assert loop.play(bag, '--wait-for', REAR_TOPIC).wait(timeout=60) == 0, loop.log('player')
     received = loop.received(linger=1.5)
     half = scene.angle_increment / 2
-    checked = 0
+    checked = lacking = 0
     rear_heard = False
     for _, raw in received['/scan_fused']:
         scan = scan_from_cdr(raw)
@@ -337,15 +338,20 @@ def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
         behind = (np.abs(b) >= 0.6 * math.pi) & (np.abs(b) <= 0.74 * math.pi)
         # The player waits until it has matched the node's subscriptions, but the node's
         # side may match the rear publisher a little later and lose its first (best-effort)
-        # scans: 1 run in 6 did. From the first scan with the rear's readings on, every one
-        # must have them (the count below bounds how many the start may cost).
-        rear_heard = rear_heard or bool(np.isfinite(scan.ranges[behind]).any())
+        # scans (1 run in 6 did), and on a loaded host best effort may lose one later. A scan
+        # fused without the rear's message has none of its readings, and the node counts it
+        # missing (checked below): a lost message, told from a wrong fusion.
+        heard_now = bool(np.isfinite(scan.ranges[behind]).any())
+        rear_heard = rear_heard or heard_now
         if not rear_heard:
+            continue
+        assert ahead(scan) == pytest.approx(BOX, abs=TOLERANCE)
+        if not heard_now:
+            lacking += 1
             continue
         near = back_wall / np.abs(np.cos(np.abs(b[behind]) + half))
         far = back_wall / np.abs(np.cos(np.abs(b[behind]) - half))
         assert np.all((scan.ranges[behind] >= near - 1e-3) & (scan.ranges[behind] <= far + 1e-3))
-        assert ahead(scan) == pytest.approx(BOX, abs=TOLERANCE)
         checked += 1
     assert checked >= 0.8 * (len(scene.scan_stamps()) - 2), loop.log('node')
     store = typestore()
@@ -353,8 +359,9 @@ def test_a_second_lidar_reading_reaches_scan_fused(tmp_path, loopback_factory):
         received['/diagnostics'][-1][1], 'diagnostic_msgs/msg/DiagnosticArray'
     )
     values = {kv.key: kv.value for kv in last.status[0].values}
-    used = int(values['source rear'].split(',')[0].removeprefix('used '))
+    used, missing = (int(n) for n in re.findall(r'(?:used|missing) (\d+)', values['source rear']))
     assert used >= checked
+    assert missing >= lacking, (lacking, values['source rear'])
 
 
 def _rss_kib(pid: int, field: str) -> int:
