@@ -12,6 +12,7 @@ from scanfuse.config import FusionConfig
 from scanfuse.errors import ConfigError
 from scanfuse.evaluate.cli import parse_worlds, with_scored
 from scanfuse.evaluate.groundtruth import SlotTruthBuilder
+from scanfuse.evaluate.report import terrain_source_rows
 from scanfuse.evaluate.results import EvaluationResult
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, terrain_simulation
 from scanfuse.evaluate.terrain_trials import (
@@ -245,3 +246,39 @@ def test_every_full_run_variant_builds_with_its_start_and_goal_clear(family):
             assert not sim.contacts()
         finally:
             sim.close()
+
+
+def test_false_obstacles_on_slopes_add_up_over_the_sources_that_made_them(tmp_path):
+    # Braking on a 1:12 ramp's platform (seed 1): every scan lies on or near the ramp.
+    settings = EvaluationSettings.quick(
+        worlds=('terrain',),
+        terrain=('terrain-brake',),
+        terrain_trials=2,
+        terrain_methods=('obstacle',),
+        methods=('lidar', 'obstacle', 'obstacle-no-memory'),
+        terrain_scored=('lidar', 'obstacle', 'obstacle-no-memory'),
+        closed_loop_methods=(),
+        turning=(),
+        amr=(),
+    )
+    evaluation = Evaluation(settings)
+    evaluation.terrain_specs = [spec for spec in evaluation.terrain_specs if spec.seed == 1]
+    assert terrain_trial('terrain-brake', 1).world.ground  # the ramp is there
+    evaluation.run()
+    result = evaluation.result([])
+    for name in ('obstacle', 'obstacle-no-memory'):
+        terrain = result.terrain[name]
+        slots = terrain.scan_slopes.slots
+        assert slots > 0
+        false = round(terrain.scan_slopes.false_obstacle_rate * slots)
+        assert set(terrain.slope_false_sources) == {'LiDAR', 'camera', 'memory'}
+        assert sum(terrain.slope_false_sources.values()) == false
+    # Without memory, the memory makes none; the LiDAR alone is no fusion to split.
+    assert result.terrain['obstacle-no-memory'].slope_false_sources['memory'] == 0
+    assert result.terrain['lidar'].slope_false_sources == {}
+    # In the report, and read back the same.
+    assert [row[0] for row in terrain_source_rows(result)] == ['obstacle', 'obstacle-no-memory']
+    loaded = EvaluationResult.load(result.save(tmp_path / 'results.json'))
+    assert loaded.terrain['obstacle'].slope_false_sources == (
+        result.terrain['obstacle'].slope_false_sources
+    )

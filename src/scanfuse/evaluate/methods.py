@@ -43,6 +43,7 @@ import yaml
 
 from scanfuse.config import FusionConfig, Method, Resampler
 from scanfuse.errors import ConfigError
+from scanfuse.evaluate.attribution import slot_sources
 from scanfuse.motion import PlanarPose
 from scanfuse.stream import FusionStream
 
@@ -50,6 +51,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from scanfuse.camera import CameraModel
+    from scanfuse.evaluate.attribution import Sources
     from scanfuse.frames import StampedTransform
     from scanfuse.scan import Scan
     from scanfuse.sim.simulation import (
@@ -259,6 +261,10 @@ class MethodStream:
         # Several LiDARs: even the camera-less method merges them in a stream.
         merges = len(base.sources.lidars) > 1
         self.takes_depth = self.spec.fuses
+        # With `record_sources` set, the source of every fused scan's readings
+        # (`attribution.slot_sources`), by the scan's stamp, until the scorer takes it.
+        self.record_sources = False
+        self.sources: dict[int, Sources] = {}
         if self.spec.fuses or merges:
             if not self.spec.fuses:
                 self.config = base.with_changes(memory=False)
@@ -317,10 +323,14 @@ class MethodStream:
     def counts(self) -> StreamCounts | None:
         return None if self.stream is None else self.stream.counts
 
-    @staticmethod
-    def _out(outputs: list[StreamOutput[LidarFrame]]) -> list[tuple[LidarFrame, Scan]]:
-        # fused None: the stream passed the LiDAR's own scan through unchanged.
-        return [
-            (output.token, output.token.scan if output.fused is None else output.fused)
-            for output in outputs
-        ]
+    def _out(self, outputs: list[StreamOutput[LidarFrame]]) -> list[tuple[LidarFrame, Scan]]:
+        released = []
+        for output in outputs:
+            # fused None: the stream passed the LiDAR's own scan through unchanged.
+            scan = output.token.scan if output.fused is None else output.fused
+            if self.record_sources and output.fused is not None:
+                self.sources[output.token.stamp_ns] = slot_sources(
+                    output.fused, output.depth_scan, output.instant
+                )
+            released.append((output.token, scan))
+        return released

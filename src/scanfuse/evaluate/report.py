@@ -331,6 +331,21 @@ TERRAIN_HEADERS = [
 ]
 
 
+def terrain_source_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per fusing method: its false obstacles on slopes by the source that made them, as
+    shares of the slots on slopes (they add up to its false obstacles on slopes)."""
+    from scanfuse.evaluate.attribution import SOURCES  # noqa: PLC0415
+
+    rows = []
+    for name, terrain in result.terrain.items():
+        slots = terrain.scan_slopes.slots
+        if not (terrain.slope_false_sources and slots):
+            continue
+        counts = [terrain.slope_false_sources.get(source, 0) for source in SOURCES]
+        rows.append([name, *(_percent(n / slots) for n in counts)])
+    return rows
+
+
 def terrain_rows(result: EvaluationResult) -> list[list[str]]:
     """Per method: false obstacles, false drops and recall on slopes, the closed loop."""
     from scanfuse.evaluate.terrain_trials import RAMP_FAMILIES  # noqa: PLC0415
@@ -395,6 +410,7 @@ def terrain_section(result: EvaluationResult) -> list[str]:
         '',
         _markdown_table(TERRAIN_HEADERS, terrain_rows(result)),
         '',
+        *_terrain_sources(result),
         _markdown_table(['family', 'method', 'collisions', 'falls', 'reached'], per_family),
         '',
         _markdown_table(
@@ -411,6 +427,30 @@ def terrain_section(result: EvaluationResult) -> list[str]:
             ],
             trials,
         ),
+        '',
+    ]
+
+
+SOURCES_NOTE = (
+    'False obstacles on slopes by the source whose reading the fused scan took there (% of '
+    'the slots on slopes; a row adds up to its false obstacles on slopes): a LiDAR plane '
+    "tilted onto the floor, the camera's slab, or the memory (remembered points placed where "
+    'nothing stands: a pose error).'
+)
+
+
+def _terrain_sources(result: EvaluationResult) -> list[str]:
+    """The report's lines on where the false obstacles on slopes come from (none without
+    a fusing method's scans on slopes)."""
+    from scanfuse.evaluate.attribution import SOURCES  # noqa: PLC0415
+
+    rows = terrain_source_rows(result)
+    if not rows:
+        return []
+    return [
+        SOURCES_NOTE,
+        '',
+        _markdown_table(['method', *SOURCES], rows),
         '',
     ]
 

@@ -110,6 +110,9 @@ class TerrainResult:
     slope_drop_free_slots: int
     slope_false_drop_slots: int
     closed_loop: ClosedLoopSummary | None
+    # A fusing method's false obstacle slots on slopes by the source that made them
+    # (`attribution.SOURCES`: LiDAR, camera, memory); empty for the others.
+    slope_false_sources: dict[str, int] = field(default_factory=dict)
 
     @property
     def false_drop_rate(self) -> float:
@@ -260,6 +263,7 @@ def _terrain_from_dict(data: dict[str, Any]) -> TerrainResult:
         slope_drop_free_slots=int(data['slope_drop_free_slots']),
         slope_false_drop_slots=int(data['slope_false_drop_slots']),
         closed_loop=None if loop is None else ClosedLoopSummary(**_none_to_nan(loop)),
+        slope_false_sources={k: int(v) for k, v in data.get('slope_false_sources', {}).items()},
     )
 
 

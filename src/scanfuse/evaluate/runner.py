@@ -27,6 +27,7 @@ from scanfuse.evaluate.amr_trials import (
     AMR_TIME_LIMIT,
     amr_trial,
 )
+from scanfuse.evaluate.attribution import SOURCES, count_sources
 from scanfuse.evaluate.closed_loop import (
     CLOSED_LOOP_TIME_LIMIT,
     TURNING_TRIALS,
@@ -54,7 +55,7 @@ from scanfuse.evaluate.mapping import (
 )
 from scanfuse.evaluate.memory_trials import MEMORY_FAMILIES
 from scanfuse.evaluate.methods import CLOSED_LOOP_METHODS, METHODS, MethodStream, method_spec
-from scanfuse.evaluate.metrics import ScanMetrics, ScanTally
+from scanfuse.evaluate.metrics import ScanMetrics, ScanTally, false_obstacle_slots
 from scanfuse.evaluate.results import (
     ClosedLoopSummary,
     EvaluationResult,
@@ -324,9 +325,16 @@ class TerrainTallies:
     drops: dict[str, DropTally] = field(default_factory=dict)
     slope_drops: dict[str, DropTally] = field(default_factory=dict)
     outcomes: list[TrialOutcome] = field(default_factory=list)
+    # Per fusing method, its false obstacle slots on slopes by the source that made them
+    # (`attribution.SOURCES`' order).
+    slope_sources: dict[str, list[int]] = field(default_factory=dict)
     # The body's pitch over the scoring run of each family's first trial: times (s), pitch
     # (degrees, positive nose-down) from the IMU, for the report's figure.
     pitch: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
+
+    def add_slope_sources(self, name: str, counts: Sequence[int]) -> None:
+        mine = self.slope_sources.setdefault(name, [0] * len(SOURCES))
+        mine[:] = [a + b for a, b in zip(mine, counts, strict=True)]
 
     @classmethod
     def of(cls, methods: Sequence[str]) -> TerrainTallies:
@@ -349,6 +357,8 @@ class TerrainTallies:
                 mine_drops[name].slots += drops.slots
                 mine_drops[name].false_drops += drops.false_drops
         self.outcomes += other.outcomes
+        for name, counts in other.slope_sources.items():
+            self.add_slope_sources(name, counts)
         for label, trace in other.pitch.items():
             self.pitch.setdefault(label, trace)
 
@@ -786,6 +796,9 @@ class Evaluation:
             slope_drop_free_slots=self.terrain.slope_drops[name].slots,
             slope_false_drop_slots=self.terrain.slope_drops[name].false_drops,
             closed_loop=ClosedLoopSummary.of(outcomes) if outcomes else None,
+            slope_false_sources=dict(
+                zip(SOURCES, self.terrain.slope_sources.get(name, ()), strict=False)
+            ),
         )
 
     def _memory_scan(self, name: str) -> ScanMetrics | None:
@@ -922,6 +935,8 @@ class _Scorer:
             else settings.methods
         )
         self.streams = [MethodStream(name, base, camera, transforms) for name in scored]
+        for stream in self.streams:
+            stream.record_sources = terrain
         self._names = {stream: stream.name for stream in self.streams}
         # On a world without drop-offs, each method that reports drops runs a twin with
         # detect_drops off on the same events: its scans tell the false drop slots.
@@ -1008,7 +1023,16 @@ class _Scorer:
         twins = {self._twins[name]: scans.pop(self._twins[name]) for name in self._twins}
         terrain = evaluation.terrain
         slope = self.terrain and self.world.on_slope(*frame.origin[:2], SLOPE_REACH)
+        sources = {
+            name: stream.sources.pop(frame.stamp_ns, None)
+            for stream, name in self._names.items()
+            if stream.record_sources
+        }
         for name, scan in scans.items():
+            made_by = sources.get(name)
+            if slope and made_by is not None:
+                false = false_obstacle_slots(scan.ranges, truth.truth)
+                terrain.add_slope_sources(name, count_sources(made_by, false))
             tallies = [self.group_tallies[name]]
             drops = []
             if self.terrain:
