@@ -195,3 +195,49 @@ def test_without_the_trail_or_an_imu_the_floor_behind_stays(changes, imu):
     sent, published, stream = drive(imu=imu, **changes)
     np.testing.assert_array_equal(published.ranges, sent.ranges)
     assert stream.counts.lidar_on_ground == 0
+
+
+SAG = math.radians(2.3)  # a sprung body's extra pitch up a 1:8 ramp, on its suspension
+
+
+def sagging_trail(settings: TrailSettings | None = None) -> tuple[GroundTrail, float]:
+    """The drive of `driven_trail` 1.5 m up the ramp, the body pitched SAG more than the
+    ramp on it: the height the trail sums climbs faster than the ramp (5.9 cm in 1.5 m)."""
+    trail = GroundTrail(settings)
+    xs = list(np.arange(START, FOOT + 1.5, STEP))
+    for x in xs:
+        pitch = pitch_at(x) + (SAG if x >= FOOT else 0.0)
+        trail.advance(PlanarPose(float(x), 0.0, 0.0), tilt(pitch), 0)
+    return trail, float(xs[-1])
+
+
+def test_a_sagging_bodys_height_drift_is_read_off_the_floor_its_lidar_meets():
+    x_end = sagging_trail()[1]
+    pitch = SLOPE + SAG  # the body's (and the LiDAR plane's) true pitch
+    rotation = tilt(pitch)
+    pose = PlanarPose(x_end, 0.0, 0.0)
+    # Where the plane meets the level floor behind (worked from the geometry: the LiDAR
+    # LIDAR_HEIGHT up the body, at height_at(x_end) above the floor; world = R base).
+    lidar_z = height_at(x_end) + LIDAR_HEIGHT * math.cos(pitch)
+    angles = np.radians(np.arange(166.0, 194.5, 0.5))  # behind, within the half width
+    fall = -np.cos(angles) * math.sin(pitch)
+    reach = lidar_z / fall
+    floor = np.stack(
+        [reach * np.cos(angles), reach * np.sin(angles), np.full_like(reach, LIDAR_HEIGHT)], 1
+    )
+    assert np.all(np.abs(floor[:, 1]) < 0.9 * HALF_WIDTH)
+    # A wall across the path 1.2 m behind: the plane meets it 0.25 m above the ramp under
+    # it, more than the most drift and the tolerance (0.17 m).
+    wall = np.array([[-1.2, 0.0, LIDAR_HEIGHT]])
+    assert lidar_z - 1.2 * math.sin(pitch) - height_at(x_end - 1.2) > 0.24
+    # Summed with the sagging pitch the base's height runs ahead of the ramp's by 1.5 m of
+    # the two slopes' difference: a floor reading stands that high above its cell.
+    assert 1.5 * (math.sin(pitch) - math.sin(SLOPE)) > 0.05
+    trail, _ = sagging_trail()
+    found = trail.on_ground(np.vstack([floor, wall]), pose, rotation)
+    assert found[:-1].all()
+    assert not found[-1]
+    # One reading alone does not show the drift; with no drift allowed, none is the floor.
+    assert not trail.on_ground(floor[:1], pose, rotation).any()
+    fixed, _ = sagging_trail(TrailSettings(max_drift=0.0))
+    assert not fixed.on_ground(floor, pose, rotation).any()

@@ -19,9 +19,18 @@ Where the trail begins (the node's start, an odometry reset), the plane the whee
 is taken out to `start_radius`, not just `half_width`: the robot was parked on that floor,
 and up a 1:8 ramp a LiDAR 0.3 m up meets the level floor 2.4 m back, behind where it set off.
 
+The base's height is summed with the body's pitch, which on a sprung body is not only the
+ground's: up a 1:8 ramp it sags 2 degrees more on its suspension, and the sum runs 7 cm
+ahead of the ramp in 1.5 m. A pitched plane meets the floor along a line, so a scan holds
+tens of readings of known ground, all that drift above it: their common height above their
+cells (`_drift`, at most `max_drift`) is taken as the drift, and a reading within
+`tolerance` of it is the floor too.
+
 A reading is dropped only where the robot has been (or around where it began): an obstacle
-there stands above the ground by more than `tolerance` wherever the LiDAR's plane meets it
-(the plane is `lidar_height` above the base), except within `tolerance` of its foot.
+there stands above the ground by more than `tolerance` (and, with a drift, than the drift's
+window) wherever the LiDAR's plane meets it (the plane is `lidar_height` above the base),
+except near its foot. A low obstacle that only a pitched plane reaches, and a level one
+passes over, may be dropped: the camera and the memory keep what stands in the slab.
 """
 
 from __future__ import annotations
@@ -50,13 +59,17 @@ class TrailSettings:
     `cell`: the grid's cell, metres; `length`: metres of path after which a cell is
     forgotten (the height summed along the path drifts); `tolerance`: metres above or
     below a cell's ground a reading may lie and still be the floor; `start_radius`: metres
-    around where the trail begins whose ground it takes (at most `length` + `half_width`)."""
+    around where the trail begins whose ground it takes (at most `length` + `half_width`);
+    `max_drift`: metres the summed height may have drifted, as `drift_readings` readings
+    of one scan on known ground show it (`GroundTrail._drift`)."""
 
     half_width: float = 1.0
     cell: float = 0.1
     length: float = 8.0
     tolerance: float = 0.05
     start_radius: float = 4.0
+    max_drift: float = 0.12
+    drift_readings: int = 20
 
     @property
     def side(self) -> int:
@@ -129,9 +142,8 @@ class GroundTrail:
         # Only points at a height some cell's ground has can lie on it (a LiDAR's points
         # stand its height above the base: on a level floor, none).
         z = self._height + self._climb(pose, tilt, self._pose) + points @ tilt[2]
-        near = np.flatnonzero(
-            (z >= self._lowest - settings.tolerance) & (z <= self._highest + settings.tolerance)
-        )
+        reach = settings.tolerance + settings.max_drift
+        near = np.flatnonzero((z >= self._lowest - reach) & (z <= self._highest + reach))
         if not near.size:
             return found
         level = points[near] @ tilt.T
@@ -145,8 +157,35 @@ class GroundTrail:
         row, column = ix % side, iy % side
         known = (self._keys[row, column, 0] == ix) & (self._keys[row, column, 1] == iy)
         known &= self._written[row, column] >= self._travelled - settings.length
-        found[near] = known & (np.abs(z - self._ground[row, column]) <= settings.tolerance)
+        above = z - self._ground[row, column]
+        on = known & (np.abs(above) <= settings.tolerance)
+        drift = self._drift(above[known])
+        if drift:
+            on |= known & (np.abs(above - drift) <= settings.tolerance)
+        found[near] = on
         return found
+
+    def _drift(self, above: F64) -> float:
+        """How far the heights summed since the trail's cells were written have drifted,
+        as this scan's readings on them show (0: they do not show it), from `above`: the
+        readings' heights above the ground of their (known) cells.
+
+        The base's height is summed with the body's pitch, and a sprung body pitches on its
+        suspension, not only with the ground (2 degrees more up a 1:8 ramp: 7 cm in 1.5 m).
+        Readings of the floor (a pitched plane meets it along a line, tens of them) then stand
+        at one height above their cells; an obstacle's face, cut by a pitched plane, stands
+        at heights that vary along it. The median of the readings within `max_drift` (and
+        `tolerance`) of their cells is the drift when `drift_readings` of them lie within
+        `tolerance` of it."""
+        settings = self.settings
+        candidates = above[np.abs(above) <= settings.max_drift + settings.tolerance]
+        if candidates.size < settings.drift_readings:
+            return 0.0
+        drift = float(np.median(candidates))
+        agree = int(np.count_nonzero(np.abs(candidates - drift) <= settings.tolerance))
+        if agree < settings.drift_readings or abs(drift) > settings.max_drift:
+            return 0.0
+        return drift
 
     @staticmethod
     def _climb(pose: PlanarPose, tilt: F64, last: PlanarPose) -> float:
