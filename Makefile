@@ -63,7 +63,7 @@ test-kilted: $(KILTED)/.installed-test
 # runs the node), the Ray cluster and the documentation site (colcon's build skips itself).
 test-py310: $(PY310)/.installed-test
 	$(PY310_BIN)/python -m pytest -n 2 -q -m 'not ros' tests --ignore tests/test_cluster.py \
-		--ignore tests/ros/test_node.py --ignore tests/test_docs_site.py
+		--ignore tests/test_docs_site.py
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m benchmarks.run

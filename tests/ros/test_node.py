@@ -37,7 +37,7 @@ from scanfuse.ros.params import (
     fusion_param_specs,
 )
 from tests.support import REPOSITORY
-from tests.support.loopback import garbage_messages
+from tests.support.malformed import garbage_messages
 from tests.support.synthetic import Scene, scene_messages, write_bag
 
 EXAMPLES = REPOSITORY / 'examples'

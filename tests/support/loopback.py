@@ -41,6 +41,7 @@ from scanfuse.ros.messages import (
     depth_to_cdr,
     typestore,
 )
+from tests.support.malformed import garbage_messages
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -93,20 +94,6 @@ def _spin_until(node: Any, done: Callable[[], bool], timeout: float) -> bool:
 
 
 GARBAGE_ROUNDS = 5
-
-
-def garbage_messages() -> list[tuple[str, bytes]]:
-    """Malformed depth images: truncated CDR, and a valid Image with the wrong encoding."""
-    import numpy as np
-
-    store = typestore()
-    good = depth_to_cdr(np.zeros((4, 4), dtype=np.uint16), frame_id='cam', stamp_ns=1, store=store)
-    wrong: Any = store.deserialize_cdr(good, IMAGE)
-    wrong.encoding = 'rgb8'
-    return [
-        ('truncated', good[: len(good) // 2]),
-        ('rgb8', bytes(store.serialize_cdr(wrong, IMAGE))),
-    ]
 
 
 def play(
