@@ -254,8 +254,9 @@ class FusionConfig(BaseModel):
         description=(
             'obstacle method with an IMU and odometry: a LiDAR reading within 5 cm of the '
             'ground the robot drove over (kept 1 m either side of its path, 4 m around where it '
-            'began) is the floor met by a pitched LiDAR plane, not an obstacle: it is dropped '
-            '(NaN)'
+            'began; or of that ground raised by the drift of its summed height, as 20 readings '
+            'of the scan show it) is the floor met by a pitched LiDAR plane, not an obstacle: '
+            'it is dropped (NaN)'
         ),
     )
     camera_x: float = _metres(0.0, 'camera position in the base frame, metres')
