@@ -20,7 +20,7 @@ is taken out to `start_radius`, not just `half_width`: the robot was parked on t
 and up a 1:8 ramp a LiDAR 0.3 m up meets the level floor 2.4 m back, behind where it set off.
 
 The base's height is summed with the body's pitch, which on a sprung body is not only the
-ground's: up a 1:8 ramp it sags 2 degrees more on its suspension, and the sum runs 7 cm
+ground's: up a 1:8 ramp it sags 2 degrees more on its suspension, and the sum runs 6-7 cm
 ahead of the ramp in 1.5 m. A pitched plane meets the floor along a line, so a scan holds
 tens of readings of known ground, all that drift above it: their common height above their
 cells (`_drift`, at most `max_drift`) is taken as the drift, and a reading within
@@ -173,8 +173,8 @@ class GroundTrail:
         The base's height is summed with the body's pitch, and a sprung body pitches on its
         suspension, not only with the ground (2 degrees more up a 1:8 ramp: 7 cm in 1.5 m).
         Readings of the floor (a pitched plane meets it along a line, tens of them) then stand
-        at one height above their cells; an obstacle's face, cut by a pitched plane, stands
-        at heights that vary along it. The median of the readings within `max_drift` (and
+        at one height above their cells, and outnumber those of any low obstacle's face the
+        plane cuts near the ground. The median of the readings within `max_drift` (and
         `tolerance`) of their cells is the drift when `drift_readings` of them lie within
         `tolerance` of it."""
         settings = self.settings
