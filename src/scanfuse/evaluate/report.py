@@ -433,9 +433,9 @@ def terrain_section(result: EvaluationResult) -> list[str]:
 
 SOURCES_NOTE = (
     'False obstacles on slopes by the source whose reading the fused scan took there (% of '
-    'the slots on slopes; a row adds up to its false obstacles on slopes): a LiDAR plane '
-    "tilted onto the floor, the camera's slab, or the memory (remembered points placed where "
-    'nothing stands: a pose error).'
+    "the slots on slopes; a row adds up to its false obstacles on slopes): a LiDAR's (say "
+    "its plane tilted onto the floor), a camera's (its slab), or the memory's (a point "
+    'remembered where nothing stands now).'
 )
 
 
