@@ -227,12 +227,11 @@ def test_a_sagging_bodys_height_drift_is_read_off_the_floor_its_lidar_meets():
     )
     assert np.all(np.abs(floor[:, 1]) < 0.9 * HALF_WIDTH)
     # A wall across the path 1.2 m behind: the plane meets it 0.25 m above the ramp under
-    # it, more than the most drift and the tolerance (0.17 m).
+    # it (0.48 - 1.2 sin(pitch) - 0.036 m), more than the most drift and the tolerance.
     wall = np.array([[-1.2, 0.0, LIDAR_HEIGHT]])
-    assert lidar_z - 1.2 * math.sin(pitch) - height_at(x_end - 1.2) > 0.24
     # Summed with the sagging pitch the base's height runs ahead of the ramp's by 1.5 m of
-    # the two slopes' difference: a floor reading stands that high above its cell.
-    assert 1.5 * (math.sin(pitch) - math.sin(SLOPE)) > 0.05
+    # the two slopes' difference (5.9 cm): a floor reading stands that high above its cell,
+    # beyond the tolerance (the trail with no drift allowed, below, finds none of them).
     trail, _ = sagging_trail()
     found = trail.on_ground(np.vstack([floor, wall]), pose, rotation)
     assert found[:-1].all()
