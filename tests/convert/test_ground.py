@@ -444,9 +444,39 @@ def test_noise_over_a_ramp_rising_ahead_costs_about_what_it_costs_over_a_flat_fl
     false, right = worst(ramp, ramp_score)
     assert false <= 2.0 * flat_false
     assert right >= 0.85
+    # Without the slope margin nor the profile's doubt (`PROFILE_DOUBT_SIGMAS`, which also
+    # raises the slab over the ramp's sparse far bins) the ramp's noise costs far more.
     monkeypatch.setattr(ground, 'SLOPE_NOISE_SIGMAS', 0.0)
+    monkeypatch.setattr(ground, 'PROFILE_DOUBT_SIGMAS', 0.0)
     unraised, _ = worst(ramp, ramp_score)
     assert false <= 0.6 * unraised
+
+
+def test_noise_beyond_a_ramp_falling_ahead_costs_less_than_twice_a_flat_floors(
+    monkeypatch,
+):
+    # A 1:8 ramp down from 1 m to a floor 0.15 m lower: 2-3 m out the profile's bins hold a
+    # noisy point or two, and a bin's ground drawn low put the floor beyond in the slab. The
+    # slab stands PROFILE_DOUBT_SIGMAS sigmas of each bin's mean higher above it.
+    from scanfuse.convert import ground
+
+    def worst_false(depths: list[np.ndarray]) -> float:
+        worst = 0.0
+        for index in range(3):
+            scan, _ = depth_scans(depths[: index + 1])
+            in_view = ~np.isnan(scan.ranges)
+            false = in_view & (scan.ranges < scan.range_max)
+            worst = max(worst, float(false.sum() / in_view.sum()))
+        return worst
+
+    flat = box_depth(CAMERA, optical_pose(), [])
+    flat_false = worst_false([noisy(flat, seed) for seed in range(3)])
+    pieces = [(-math.inf, 1.0, 0.0, 0.0), (1.0, 2.2, 0.0, -1.0 / 8.0), (2.2, math.inf, -0.15, 0.0)]
+    clean = ground_depth(CAMERA, optical_pose(), pieces)
+    ramp = [noisy(clean, seed) for seed in range(3)]
+    assert worst_false(ramp) <= 2.0 * flat_false
+    monkeypatch.setattr(ground, 'PROFILE_DOUBT_SIGMAS', 0.0)
+    assert worst_false(ramp) > 2.5 * flat_false
 
 
 def test_a_flat_floors_noise_makes_no_profile_and_a_ramp_from_2_m_still_does(monkeypatch):

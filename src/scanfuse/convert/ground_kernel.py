@@ -381,9 +381,11 @@ def _profile(
     bin_size: float,
     deadband: float,
     evidence_sigmas: float,
+    doubt_sigmas: float,
     profile: Any,
     evidence: Any,
     low: Any,
+    doubt: Any,
 ) -> None:
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
@@ -404,6 +406,8 @@ def _profile(
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
     the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
+    `doubt[c, b]`: `doubt_sigmas` sigmas of the mean that made bin b's ground (the last seen's
+    where it was held or taken from a neighbour).
 
     `low` is the lowest the ground may be, what a drop is measured below: the profile where
     a column saw ground (or took a neighbour's), and beyond, where it saw none (behind a
@@ -457,7 +461,7 @@ def _profile(
             if slot[c, j] >= 0:
                 order[filled[slot[c, j]]] = j
                 filled[slot[c, j]] += 1
-        ground, at = 0.0, 0.0
+        ground, at, sigma = 0.0, 0.0, 0.0
         streak = 0
         evidence[c] = 0
         for b in range(bins):
@@ -490,7 +494,8 @@ def _profile(
                 # Off by more than the deadband (what the slab's bottom can afford) and than
                 # the noise of the mean: far out a bin holds a point or two, each a centimetre
                 # or more off, and a flat floor's noise would make a profile.
-                band = max(deadband, evidence_sigmas * math.sqrt(spread) / found)
+                sigma = math.sqrt(spread) / found
+                band = max(deadband, evidence_sigmas * sigma)
                 streak = streak + 1 if abs(ground) > band else 0
                 evidence[c] = max(evidence[c], streak)
             elif above >= 2 or below >= 2:
@@ -498,6 +503,7 @@ def _profile(
                 # the window does not widen onto a deep box's top or a drop's far floor.
                 at = centre
             profile[c, b] = ground
+            doubt[c, b] = doubt_sigmas * sigma
     # A bin where a column saw no ground (behind an obstacle, past a wall's foot) takes the
     # ground of the nearest column within FILL_COLUMNS that saw it there, not its own held
     # level: an image column fans out across the floor, and the pixels mapped to it beside
@@ -510,10 +516,12 @@ def _profile(
             for step in range(1, FILL_COLUMNS + 1):
                 if c - step >= 0 and seen[c - step, b]:
                     profile[c, b] = profile[c - step, b]
+                    doubt[c, b] = doubt[c - step, b]
                     known[c, b] = True
                     break
                 if c + step < columns_used and seen[c + step, b]:
                     profile[c, b] = profile[c + step, b]
+                    doubt[c, b] = doubt[c + step, b]
                     known[c, b] = True
                     break
     for c in range(min(columns_used, low.shape[0])):
@@ -544,6 +552,7 @@ def _crossings(
     levels: Any,
     low_from: int,
     margin_sigmas: float,
+    doubt: Any,
     lifts: Any,
 ) -> None:
     """Per level L and ray the ground's height g above the plane at the point where the
@@ -559,10 +568,12 @@ def _crossings(
 
     Where the ground rises away from the camera, a level L > 0 is raised by
     `margin_sigmas` (noise per metre of depth squared, sigmas included) x Z^2 x the rise per
-    metre of depth there (see `slope_margin`), as a lift that measures it above that ground.
+    metre of depth there (see `slope_margin`), as a lift that measures it above that ground;
+    and by the ground's `doubt` there (`_profile`; none where `doubt` has no columns).
     """
     bins = min(profile.shape[1], low.shape[1])
     last = min(columns.size, profile.shape[0], low.shape[0]) - 1
+    doubted = doubt.shape[0] > last and doubt.shape[1] >= bins
     first_column = columns[0]
     step = columns[1] - columns[0] if columns.size > 1 else 1
     for i in range(min(x_n.size, y_n.size, lifts.shape[1])):
@@ -606,6 +617,8 @@ def _crossings(
                     lift += slope_margin(
                         margin_sigmas * depth * depth, (g_here - g_before) / (z - z_before), down
                     )
+                if target > 0.0 and doubted:
+                    lift += doubt[c, before] + share * (doubt[c, knot] - doubt[c, before])
                 lifts[pending, i] = lift
                 pending += 1
             if z >= far or pending == count:
@@ -615,7 +628,12 @@ def _crossings(
             z_before = z
         for level in range(pending, count):
             # The ground at the walk's last knot: depth `far`.
-            lifts[level, i] = g_low if level >= low_from else g
+            if level >= low_from:
+                lifts[level, i] = g_low
+            elif levels[level] > 0.0 and doubted:
+                lifts[level, i] = g + doubt[c, min(b, bins - 1)]
+            else:
+                lifts[level, i] = g
 
 
 def _slope_margin(sigma: float, rise: float, down: float) -> float:
