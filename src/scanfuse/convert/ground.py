@@ -309,9 +309,9 @@ PROFILE_EVIDENCE_SIGMAS = 3.0
 # above the profile's ground there: 2-3 m out a bin's ground is the mean of a point or two,
 # each a centimetre or more off, and the floor beyond a ramp stood in the slab above a bin
 # drawn low. Noisy, a 1:8 ramp down from 1 m gave false slots in 40 % of the view (a flat
-# floor's noise: 14 %), 23 % with 1 sigma, 14 % with 2. 2 sigmas took more from the camera's false
-# obstacles on slopes in `scanfuse evaluate` (0.72 against 1.13 points), but a drive up
-# a 1:8 ramp stalled beside a box on it; 1 sigma kept every goal.
+# floor's noise: 14 %), 23 % with 1 sigma, 14 % with 2. In `scanfuse evaluate`, 2 sigmas took
+# as much from the camera's false obstacles on slopes (0.72 against 1.13 points) as 1, but a
+# drive up a 1:8 ramp stalled beside a box on it; 1 sigma kept every goal.
 PROFILE_DOUBT_SIGMAS = 1.0
 # Noise sigmas by which the slab's bottom is raised over a ramp rising away from the camera
 # (by the extra its noise lifts readings there: `ground_kernel.slope_margin`). With the
