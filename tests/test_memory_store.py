@@ -19,6 +19,7 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
+    backed_readings,
     not_nearer_than,
     slab_points,
     unseen_by,
@@ -290,3 +291,21 @@ def test_pixels_far_apart_do_not_add_up_to_a_dense_cell():
     assert small.add_dense(x, np.full(3, 0.001), 0, min_count=3, robot=ORIGIN) == 0
     assert len(small) == 0
     assert memory.add_dense(x, np.full(3, 0.001), 0, min_count=2, robot=ORIGIN) == 1
+
+
+def test_a_reading_is_backed_by_slab_pixels_about_it_in_its_slot_or_the_next():
+    # Readings at 0, 10 and 20 degrees (1.5 m) and 30 degrees (2.0 m). Pixels: 5 cm behind
+    # the first; one slot (0.1 degree) beside the second at its range; 25 cm behind the
+    # third, farther than 10 cm; none about the fourth.
+    ranges = np.full(SLOTS, np.nan, np.float32)
+    for degrees, reach in ((0.0, 1.5), (10.0, 1.5), (20.0, 1.5), (30.0, 2.0)):
+        ranges[int(GRID.slot_of(np.array([math.radians(degrees)]))[0])] = reach
+    scan = Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
+                GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
+    bearings = np.radians([0.0, 10.1, 20.0])
+    reach = np.array([1.55, 1.5, 1.75])
+    x, y = reach * np.cos(bearings), reach * np.sin(bearings)
+    backed = backed_readings(x, y, scan, AT_ORIGIN, within=0.10, spread=1)
+    assert [at_degrees(backed, d) for d in (0.0, 10.0, 20.0, 30.0)] == [1.0, 1.0, 0.0, 0.0]
+    assert int(backed.sum()) == 2  # no slot without a reading is backed (10.1 degrees)
+    assert not backed_readings(x[:0], y[:0], scan, AT_ORIGIN, within=0.10).any()

@@ -788,6 +788,27 @@ def lidar_misses(
 _SLAB = compiled(_slab_loop)
 
 
+def backed_readings(
+    x: F64, y: F64, scan: Scan, sensor: Placement, within: float, spread: int = 1
+) -> npt.NDArray[np.bool_]:
+    """Per slot of `scan` (seen from `sensor`): a point (odometry frame) lies in it or in a
+    slot up to `spread` beside it, no more than `within` metres nearer or farther than its
+    reading. A reading on a surface has its slab pixels about it; one that stereo noise of
+    the floor lifted into the slab in one slot has none that survive `slab_points`."""
+    backed = np.zeros(len(scan), dtype=np.bool_)
+    if x.size == 0:
+        return backed
+    reach, slot = _reach_and_slot(x, y, scan.grid, sensor)
+    for step in range(-spread, spread + 1):
+        beside = slot + step
+        inside = (slot >= 0) & (beside >= 0) & (beside < len(scan))
+        reading = _usable_reading(scan, np.where(inside, beside, -1))
+        with np.errstate(invalid='ignore'):
+            near = np.abs(reach - reading) <= within  # False against NaN: no reading
+        backed[beside[near]] = True
+    return backed
+
+
 def _reach_and_slot(
     x: F64, y: F64, grid: AngleGrid, sensor: Placement
 ) -> tuple[F64, npt.NDArray[np.int64]]:

@@ -68,6 +68,7 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
+    backed_readings,
     lidar_misses,
     slab_points,
     worth_remembering,
@@ -97,6 +98,8 @@ if TYPE_CHECKING:
     from scanfuse.pipeline import FusionPipeline
     from scanfuse.scan import AngleGrid, Scan
 
+    F64 = npt.NDArray[np.float64]
+
 logger = logging.getLogger(__name__)
 
 T = TypeVar('T')
@@ -113,6 +116,13 @@ MEMORY_NEIGHBOUR_AGREEMENT = 0.02
 # A remembered point the LiDAR sees (its reading no farther than the point by this much,
 # metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
 LIDAR_SEES_MARGIN = (0.05, 0.02)
+# A depth-scan reading is remembered only with the memory's slab pixels of the camera's
+# latest frame within this many metres of it, in its slot or one beside it
+# (`backed_readings`). The floor's noise that one slot lifted into the slab has none; live
+# it is one frame's false slot, remembered it stayed until cleared. On the terrain drives
+# (`scanfuse evaluate --worlds terrain`) those readings were half the memory's false
+# obstacles on slopes.
+MEMORY_READING_BACKING = (0.10, 1)
 # Slower than this between two scans (m/s, rad/s) the robot stands still: with
 # `memory_ages_while_stopped` false the memory does not age then (`_age_while_moving`).
 # Far above a standing robot's odometry noise, far below any commanded motion.
@@ -301,6 +311,9 @@ class FusionStream(Generic[T]):
         self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
+        # The memory's slab pixels of the cameras' latest frames (odometry frame): what backs
+        # a depth-scan reading worth remembering (`MEMORY_READING_BACKING`).
+        self._slab_points: tuple[F64, F64] = (np.empty(0), np.empty(0))
         self.trail: GroundTrail | None = None  # `ground_trail`: the ground driven over
         self.assembler: FragmentAssembler[T] | None = None
         # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
@@ -1251,6 +1264,7 @@ class FusionStream(Generic[T]):
         robot = (pose.x, pose.y)
         # Every camera forgets what it sees free (a rear camera behind a reversing robot)
         # and remembers its slab, each frame once, with its own slab and floor.
+        slab: list[tuple[F64, F64]] = []
         for camera in paired:
             feed, frame, extrinsics = camera.feed, camera.frame, camera.extrinsics
             if frame is None or extrinsics is None or frame.stamp_ns == feed.cleared_with:
@@ -1264,13 +1278,21 @@ class FusionStream(Generic[T]):
                 continue
             feed.cleared_with = frame.stamp_ns
             if output.depth_scan is not None:
-                self._add_slab(
+                slab.append(self._add_slab(
                     memory, feed, frame, seen_from, output.depth_scan, output.every_lidar,
                     placement, robot,
-                )  # fmt: skip
+                ))  # fmt: skip
+        if slab:
+            self._slab_points = (
+                np.concatenate([x for x, _ in slab]),
+                np.concatenate([y for _, y in slab]),
+            )
         if output.depth_scan is not None:
-            unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
-            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, unseen, robot=robot)
+            keep = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
+            keep &= backed_readings(
+                *self._slab_points, output.depth_scan, placement, *MEMORY_READING_BACKING
+            )
+            memory.add_scan(output.depth_scan, placement, scan.stamp_ns, keep, robot=robot)
         ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
         # REP-117: a published finite reading lies inside its limits. A remembered point
         # nearer than range_min (the robot pushed into it) is no reading of this scan, as
@@ -1356,11 +1378,12 @@ class FusionStream(Generic[T]):
         lidar: Scan,
         placement: Placement,
         robot: tuple[float, float],
-    ) -> None:
+    ) -> tuple[F64, F64]:
         """Remember the slab pixels of `frame` behind their slot's obstacle reading that
         agree with their neighbours, as the mean of each dense cell's: a box's sides and far
         corners, not only the face nearest the LiDAR, so that what clearing forgets of a
-        place is replaced by all the camera sees there."""
+        place is replaced by all the camera sees there. Returns those pixels (odometry
+        frame)."""
         config = self.config
         own = feed.config
         profile = None if feed.ground is None else feed.ground.profile
@@ -1380,9 +1403,9 @@ class FusionStream(Generic[T]):
             ),
         )
         keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)
-        memory.add_dense(
-            x[keep], y[keep], depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot
-        )
+        x, y = x[keep], y[keep]
+        memory.add_dense(x, y, depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot)
+        return x, y
 
     def _age_while_moving(self, memory: ObstacleMemory, stamp_ns: int, pose: PlanarPose) -> None:
         """Stop the memory's clock for the time since the last scan if odometry says the
@@ -1411,6 +1434,7 @@ class FusionStream(Generic[T]):
 
     def _drop_memory(self, why: str) -> None:
         self.drift.reset()  # the odometry frame the correction was for is gone too
+        self._slab_points = (np.empty(0), np.empty(0))  # and the pixels placed in it
         if self.memory is not None and len(self.memory):
             self.memory.clear()
             self.counts.memory_dropped += 1
