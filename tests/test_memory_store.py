@@ -309,3 +309,21 @@ def test_a_reading_is_backed_by_slab_pixels_about_it_in_its_slot_or_the_next():
     assert [at_degrees(backed, d) for d in (0.0, 10.0, 20.0, 30.0)] == [1.0, 1.0, 0.0, 0.0]
     assert int(backed.sum()) == 2  # no slot without a reading is backed (10.1 degrees)
     assert not backed_readings(x[:0], y[:0], scan, AT_ORIGIN, within=0.10).any()
+
+
+def test_a_reading_at_the_seam_of_a_full_turn_is_backed_from_the_other_end():
+    # The first slot points straight behind (-180 degrees), the last 0.1 degree before it
+    # (+179.9): neighbours on a turn, 3600 slots apart in the array.
+    ranges = np.full(SLOTS, np.nan, np.float32)
+    ranges[0] = ranges[SLOTS - 1] = 1.5
+    scan = Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
+                GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
+    behind = np.radians([179.9])  # in the last slot only
+    x, y = 1.5 * np.cos(behind), 1.5 * np.sin(behind)
+    backed = backed_readings(x, y, scan, AT_ORIGIN, within=0.10, spread=1)
+    assert backed[0]
+    assert backed[SLOTS - 1]
+    half = Scan(0.0, math.pi - GRID.angle_increment, GRID.angle_increment, 0.1, 10.0,
+                ranges[: SLOTS // 2])  # fmt: skip
+    assert GRID.full_turn
+    assert not half.grid.full_turn

@@ -801,6 +801,8 @@ def backed_readings(
     reach, slot = _reach_and_slot(x, y, scan.grid, sensor)
     for step in range(-spread, spread + 1):
         beside = slot + step
+        if scan.grid.full_turn:
+            beside = np.where(slot >= 0, np.mod(beside, len(scan)), -1)
         inside = (slot >= 0) & (beside >= 0) & (beside < len(scan))
         reading = _usable_reading(scan, np.where(inside, beside, -1))
         with np.errstate(invalid='ignore'):

@@ -128,6 +128,12 @@ class AngleGrid:
     def angle_max(self) -> float:
         return self.angle_min + self.angle_increment * (self.count - 1)
 
+    @property
+    def full_turn(self) -> bool:
+        """The slots go all the way round: the last one's neighbour is the first."""
+        step = abs(self.angle_increment)
+        return self.count * step >= TWO_PI - 0.5 * step
+
     def angles(self) -> AngleArray:
         return self._angles
 

@@ -211,7 +211,7 @@ def levelled(scan: Scan, tilt: F64, base_to_laser: Transform) -> Scan:
     step, turn = abs(scan.angle_increment), math.copysign(1.0, scan.angle_increment)
     along = np.mod(turn * (bearing - scan.angle_min) + step / 2, TWO_PI) - step / 2
     slot = np.round(along / step).astype(np.int64)
-    full = count * step >= TWO_PI - 0.5 * step
+    full = scan.grid.full_turn
     slot = np.mod(slot, count) if full else slot
     inside = (slot >= 0) & (slot < count)
     ranges = np.full(count, np.inf)
@@ -303,7 +303,7 @@ def reference(scan: Scan) -> Reference:
     """`scan` prepared as the reference of later matches (its lines fitted once)."""
     x, y = points(scan)
     increment = float(scan.angle_increment)
-    full = len(scan) * abs(increment) >= TWO_PI - 0.5 * abs(increment)
+    full = scan.grid.full_turn
     nx, ny, cx, cy = (np.empty_like(x) for _ in range(4))
     lines = int(
         _NORMALS(x, y, increment, full, NORMAL_SPAN, MAX_NEIGHBOURS, MAX_FLATNESS, nx, ny, cx, cy)
