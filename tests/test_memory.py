@@ -26,6 +26,8 @@ from tests.support.render import (
     Box,
     camera_in_world,
     depth_image,
+    ground_depth,
+    millimetres,
     square_room_ranges,
     tilted_room_ranges,
 )
@@ -88,6 +90,9 @@ class Robot:
             )
             self.stream.add_odometry(self.now, self.pose)
 
+    def render(self, view: Transform) -> np.ndarray:
+        return depth_image(CAMERA, view, self.world)
+
     def scan(self, *, camera: bool = True):
         """One depth frame (20 ms old, same pose: the robot stands) and one LiDAR scan."""
         self.now += NS // 50
@@ -96,7 +101,7 @@ class Robot:
             view = camera_in_world(
                 self.pose.x, self.pose.y, self.pose.yaw, height=HEIGHT, pitch=PITCH
             )
-            depth = depth_image(CAMERA, view, self.world)
+            depth = self.render(view)
             self.stream.add_depth(self.now - 20_000_000, depth, self.now - 5_000_000)
         (out,) = self.stream.add_scan(lidar(self.now), None, self.now + 1_000_000)
         return out
@@ -132,6 +137,29 @@ def test_a_box_stays_behind_the_robot_after_a_half_turn_and_the_lidar_never_clea
     instant = behind.instant if behind.instant is not None else behind.lidar
     assert not np.isfinite(reading_at(instant, math.pi)[0])  # the camera alone has nothing there
     assert np.isfinite(behind.memory_scan.ranges).any()
+
+
+class LedgeRobot(Robot):
+    """The floor ends 1.2 m ahead of the start: beyond it lies 0.4 m lower (a loading dock)."""
+
+    EDGE = 1.2
+
+    def render(self, view: Transform) -> np.ndarray:
+        pieces = [(-math.inf, self.EDGE, 0.0, 0.0), (self.EDGE, math.inf, -0.4, 0.0)]
+        return millimetres(ground_depth(CAMERA, view, pieces))
+
+
+def test_a_ledge_seen_ahead_is_remembered_behind_though_no_slab_pixel_stands_there():
+    stream = FusionStream(config())
+    robot = LedgeRobot(stream, [])
+    ahead = reading_at(robot.scan().fused, 0.0)[0]
+    # The line of sight of the first pixel beyond the edge crosses the floor's plane at
+    # the edge or a little past it.
+    assert LedgeRobot.EDGE - 0.02 <= ahead <= LedgeRobot.EDGE + 0.15
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)
+    for _ in range(5):
+        behind = robot.scan()
+    assert reading_at(behind.fused, math.pi)[0] == pytest.approx(ahead, abs=0.03)
 
 
 def test_the_camera_looking_at_the_empty_place_clears_it_within_one_frame():

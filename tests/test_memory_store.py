@@ -22,6 +22,7 @@ from scanfuse.memory import (
     backed_readings,
     not_nearer_than,
     slab_points,
+    unbacked_readings,
     unseen_by,
     worth_remembering,
 )
@@ -327,3 +328,24 @@ def test_a_reading_at_the_seam_of_a_full_turn_is_backed_from_the_other_end():
                 ranges[: SLOTS // 2])  # fmt: skip
     assert GRID.full_turn
     assert not half.grid.full_turn
+
+
+def test_only_a_cameras_own_slab_readings_go_unbacked():
+    # The camera's readings at 1.5 m: 0 degrees (pixels behind it), 10 degrees (no pixels),
+    # 20 degrees (a drop-off's edge, no pixels: the floor is missing), 30 degrees (no
+    # pixels, but another source's 1.0 m is the merged scan's reading).
+    own = np.full(SLOTS, np.nan, np.float32)
+    slots = [int(GRID.slot_of(np.array([math.radians(d)]))[0]) for d in (0.0, 10.0, 20.0, 30.0)]
+    own[slots] = 1.5
+    merged = own.copy()
+    merged[slots[3]] = 1.0
+    slab = np.isfinite(own)
+    slab[slots[2]] = False
+
+    def scan(ranges):
+        return Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
+                    GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
+
+    x, y = np.array([1.55]), np.array([0.0])
+    unbacked = unbacked_readings(scan(own), slab, scan(merged), x, y, AT_ORIGIN, 0.10)
+    assert np.flatnonzero(unbacked).tolist() == [slots[1]]

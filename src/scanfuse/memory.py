@@ -811,6 +811,25 @@ def backed_readings(
     return backed
 
 
+def unbacked_readings(
+    own: Scan,
+    slab_slots: npt.NDArray[np.bool_],
+    merged: Scan,
+    x: F64,
+    y: F64,
+    sensor: Placement,
+    within: float,
+    spread: int = 1,
+) -> npt.NDArray[np.bool_]:
+    """The slots where `merged` takes `own`'s reading of the slab (`slab_slots`: not a
+    drop-off's edge) and no slab pixel of the frame `own` came from (x, y, odometry frame)
+    backs it (`backed_readings`). Both scans share a grid."""
+    with np.errstate(invalid='ignore'):
+        taken = slab_slots & (own.ranges <= merged.ranges)  # False against NaN: no reading
+    unbacked: npt.NDArray[np.bool_] = taken & ~backed_readings(x, y, own, sensor, within, spread)
+    return unbacked
+
+
 def _reach_and_slot(
     x: F64, y: F64, grid: AngleGrid, sensor: Placement
 ) -> tuple[F64, npt.NDArray[np.int64]]:

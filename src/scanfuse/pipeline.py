@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Generic, TypeVar
 
+import numpy as np
+
 from scanfuse.config import FusionConfig, Method
 from scanfuse.convert.floor import FloorGuard
 from scanfuse.convert.ground import GroundPlane, GroundProfile
@@ -25,7 +27,6 @@ from scanfuse.sources import MAX_MOUNTING_OFFSET
 from scanfuse.transforms import Extrinsics
 
 if TYPE_CHECKING:
-    import numpy as np
     import numpy.typing as npt
 
     from scanfuse.camera import CameraModel
@@ -119,11 +120,14 @@ class StageTimings:
 
 @dataclass(frozen=True)
 class FusedResult:
-    """The fused scan, the depth scan on the LiDAR's grid, and how long each stage took."""
+    """The fused scan, the depth scan on the LiDAR's grid, and how long each stage took.
+    `slab_slots`: the depth scan's slots whose reading is the collision slab's, not a
+    drop-off's edge (None: the row method, which tells no slab from floor)."""
 
     fused: Scan
     depth_scan: Scan
     timings: StageTimings
+    slab_slots: npt.NDArray[np.bool_] | None = None
 
 
 class FusionPipeline:
@@ -210,8 +214,10 @@ class FusionPipeline:
                 frame_id=lidar.frame_id,
                 stamp_ns=lidar.stamp_ns,
             )
+            slab_slots = np.isfinite(depth_scan.ranges) & ~projector.drop_slots
             resampled = time.perf_counter()
         else:
+            slab_slots = None
             depth_scan = self.row_depth_scan(depth, camera)
             if not motion.is_identity:
                 depth_scan = depth_scan.with_ranges(
@@ -229,6 +235,7 @@ class FusionPipeline:
             fused=fused,
             depth_scan=on_lidar_grid,
             timings=StageTimings(converted - start, resampled - converted, merged - resampled),
+            slab_slots=slab_slots,
         )
 
     def row_depth_scan(self, depth: npt.NDArray[np.generic], camera: CameraModel) -> Scan:

@@ -68,9 +68,9 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
-    backed_readings,
     lidar_misses,
     slab_points,
+    unbacked_readings,
     worth_remembering,
 )
 from scanfuse.motion import IDENTITY_MOTION, OdometryHistory, PlanarMotion, PlanarPose
@@ -99,6 +99,7 @@ if TYPE_CHECKING:
     from scanfuse.scan import AngleGrid, Scan
 
     F64 = npt.NDArray[np.float64]
+    Mask = npt.NDArray[np.bool_]
 
 logger = logging.getLogger(__name__)
 
@@ -116,13 +117,16 @@ MEMORY_NEIGHBOUR_AGREEMENT = 0.02
 # A remembered point the LiDAR sees (its reading no farther than the point by this much,
 # metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
 LIDAR_SEES_MARGIN = (0.05, 0.02)
-# A depth-scan reading is remembered only with the memory's slab pixels of the camera's
-# latest frame within this many metres of it, in its slot or one beside it
-# (`backed_readings`). The floor's noise that one slot lifted into the slab has none; live
-# it is one frame's false slot, remembered it stayed until cleared. On the terrain drives
-# (`scanfuse evaluate --worlds terrain`) those readings were half the memory's false
-# obstacles on slopes.
+# A camera's slab reading is remembered only with slab pixels its frame gave the memory
+# within this many metres of it, in its slot or one beside it (`unbacked_readings`). The
+# floor's noise that one slot lifted into the slab has none; live it is one frame's false
+# slot, remembered it stayed until cleared. On the terrain drives (`scanfuse evaluate
+# --worlds terrain`) those readings were half the memory's false obstacles on slopes. A
+# drop-off's edge has no slab pixels (the floor is missing there) and a point cloud's
+# reading no camera pixels: both are remembered as before.
 MEMORY_READING_BACKING = (0.10, 1)
+NO_PIXELS = np.empty(0)  # a camera whose frame gave the memory no slab pixels
+NO_PIXELS.setflags(write=False)
 # Slower than this between two scans (m/s, rad/s) the robot stands still: with
 # `memory_ages_while_stopped` false the memory does not age then (`_age_while_moving`).
 # Far above a standing robot's odometry noise, far below any commanded motion.
@@ -248,6 +252,7 @@ class _Seen:
     extrinsics: Extrinsics | None = None  # the mounting on the floor found (memory's slab)
     compensation: Compensation = Compensation.OFF
     timings: StageTimings | None = None
+    slab_slots: Mask | None = None  # `FusedResult.slab_slots`
 
 
 @dataclass(frozen=True)
@@ -311,9 +316,9 @@ class FusionStream(Generic[T]):
         self.drift = DriftCorrection()
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
-        # The memory's slab pixels of the cameras' latest frames (odometry frame): what backs
-        # a depth-scan reading worth remembering (`MEMORY_READING_BACKING`).
-        self._slab_points: tuple[F64, F64] = (np.empty(0), np.empty(0))
+        # Per camera, the slab pixels its latest frame gave the memory (that frame's stamp,
+        # odometry frame): what backs its readings worth remembering (`_unbacked`).
+        self._slab_points: dict[str, tuple[int, F64, F64]] = {}
         self.trail: GroundTrail | None = None  # `ground_trail`: the ground driven over
         self.assembler: FragmentAssembler[T] | None = None
         # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
@@ -950,7 +955,10 @@ class FusionStream(Generic[T]):
         except ScanfuseError as err:
             self.note_malformed('fusion', err)
             return _Seen(feed, Passed.FUSION_FAILED, frame)
-        return _Seen(feed, None, frame, result.depth_scan, extrinsics, compensation, result.timings)
+        return _Seen(
+            feed, None, frame, result.depth_scan, extrinsics, compensation, result.timings,
+            result.slab_slots,
+        )  # fmt: skip
 
     def _camera_mount(
         self, feed: CameraFeed, frame: DepthFrame, lidar_frame: str | None
@@ -1264,7 +1272,6 @@ class FusionStream(Generic[T]):
         robot = (pose.x, pose.y)
         # Every camera forgets what it sees free (a rear camera behind a reversing robot)
         # and remembers its slab, each frame once, with its own slab and floor.
-        slab: list[tuple[F64, F64]] = []
         for camera in paired:
             feed, frame, extrinsics = camera.feed, camera.frame, camera.extrinsics
             if frame is None or extrinsics is None or frame.stamp_ns == feed.cleared_with:
@@ -1278,20 +1285,14 @@ class FusionStream(Generic[T]):
                 continue
             feed.cleared_with = frame.stamp_ns
             if output.depth_scan is not None:
-                slab.append(self._add_slab(
+                self._slab_points[feed.name] = (frame.stamp_ns, *self._add_slab(
                     memory, feed, frame, seen_from, output.depth_scan, output.every_lidar,
                     placement, robot,
                 ))  # fmt: skip
-        if slab:
-            self._slab_points = (
-                np.concatenate([x for x, _ in slab]),
-                np.concatenate([y for _, y in slab]),
-            )
         if output.depth_scan is not None:
             keep = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
-            keep &= backed_readings(
-                *self._slab_points, output.depth_scan, placement, *MEMORY_READING_BACKING
-            )
+            for camera in paired:
+                keep &= ~self._unbacked(camera, output.depth_scan, placement)
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, keep, robot=robot)
         ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
         # REP-117: a published finite reading lies inside its limits. A remembered point
@@ -1407,6 +1408,20 @@ class FusionStream(Generic[T]):
         memory.add_dense(x, y, depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot)
         return x, y
 
+    def _unbacked(self, camera: _Seen, depth_scan: Scan, placement: Placement) -> Mask:
+        """The slots where `depth_scan` takes `camera`'s slab reading with none of the slab
+        pixels its frame gave the memory about it (`MEMORY_READING_BACKING`); none for a
+        camera without slab readings (the row method)."""
+        if camera.depth_scan is None or camera.slab_slots is None or camera.frame is None:
+            return np.zeros(len(depth_scan), dtype=np.bool_)
+        stamp_ns, x, y = self._slab_points.get(camera.feed.name, (None, NO_PIXELS, NO_PIXELS))
+        if stamp_ns != camera.frame.stamp_ns:
+            x, y = NO_PIXELS, NO_PIXELS  # not this frame's pixels: nothing backs its readings
+        return unbacked_readings(
+            camera.depth_scan, camera.slab_slots, depth_scan, x, y, placement,
+            *MEMORY_READING_BACKING,
+        )  # fmt: skip
+
     def _age_while_moving(self, memory: ObstacleMemory, stamp_ns: int, pose: PlanarPose) -> None:
         """Stop the memory's clock for the time since the last scan if odometry says the
         robot stood still (`memory_ages_while_stopped` false)."""
@@ -1434,7 +1449,7 @@ class FusionStream(Generic[T]):
 
     def _drop_memory(self, why: str) -> None:
         self.drift.reset()  # the odometry frame the correction was for is gone too
-        self._slab_points = (np.empty(0), np.empty(0))  # and the pixels placed in it
+        self._slab_points.clear()  # and the pixels placed in it
         if self.memory is not None and len(self.memory):
             self.memory.clear()
             self.counts.memory_dropped += 1
