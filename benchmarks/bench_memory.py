@@ -26,9 +26,9 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
-    backed_readings,
     lidar_misses,
     slab_points,
+    unbacked_readings,
     worth_remembering,
 )
 from scanfuse.motion import PlanarPose
@@ -162,8 +162,10 @@ def run() -> list[Row]:
         depth, camera, view, slab=(0.03, 0.5), range_min=0.2, range_max=3.0
     )
 
+    every_reading = np.isfinite(scan.ranges)
+
     def backing() -> None:
-        backed_readings(wall_x, wall_y, scan, placement, 0.10, 1)
+        unbacked_readings(scan, every_reading, scan, wall_x, wall_y, placement, 0.10, 1)
 
     points = len(memory)
     return [

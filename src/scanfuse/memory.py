@@ -4,7 +4,9 @@ The depth camera sees about 87 degrees, the LiDAR 360; a low obstacle that leave
 camera's view falls back to the LiDAR's reading, which passes over it. The memory keeps
 the camera's obstacle points in the odometry frame and merges them into every output
 scan, seen from the LiDAR at the scan's stamp. What it takes in (`FusionStream`): the
-depth scan's reading of every slot, and per depth frame every slab pixel no nearer than
+depth scan's reading of every slot (a camera's slab reading only with slab pixels of its
+frame about it, `unbacked_readings`: floor noise that one slot lifted into the slab has
+none), and per depth frame every slab pixel no nearer than
 its slot's reading (`slab_points`, `not_nearer_than`: a box's sides, its top back to the
 far edge, not only the face nearest the LiDAR) that agrees with both its horizontal
 neighbours (`agreement`: a pixel on a box's outline, or one that stereo noise threw back

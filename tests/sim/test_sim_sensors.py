@@ -274,7 +274,9 @@ def test_renderer_depth_agrees_with_ray_casting():
         except SimError as err:
             print('NO-GL', err)
             raise SystemExit(0)
-        cast = Simulation(SimConfig(world='clutter', resolution=(256, 144), noise=False))
+        # Named: with MUJOCO_GL=egl set, the automatic choice would be the renderer again.
+        cast = Simulation(SimConfig(world='clutter', resolution=(256, 144), noise=False,
+                                    depth_backend=DepthBackend.MULTIRAY))
         a, b = rendered.true_depth(), cast.true_depth()
         from scanfuse.sim.sensors import depth_edges
         smooth = ~depth_edges(b, 0.02) & np.isfinite(a) & np.isfinite(b) & (b < 8)
