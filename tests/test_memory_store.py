@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from scanfuse.camera import CameraModel
 from scanfuse.errors import InputError
@@ -349,3 +351,44 @@ def test_only_a_cameras_own_slab_readings_go_unbacked():
     x, y = np.array([1.55]), np.array([0.0])
     unbacked = unbacked_readings(scan(own), slab, scan(merged), x, y, AT_ORIGIN, 0.10)
     assert np.flatnonzero(unbacked).tolist() == [slots[1]]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    grid=st.sampled_from(
+        [
+            GRID,  # a full turn from -180 degrees
+            AngleGrid(-math.radians(135), math.radians(0.25), 1081),  # 270 degrees (UST-10LX)
+            AngleGrid(math.pi, -2 * math.pi / 720, 720),  # a full turn, clockwise
+        ]
+    ),
+    sensor=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-math.pi, math.pi)),
+)
+def test_backed_readings_marks_the_slots_a_brute_force_count_finds(seed, grid, sensor):
+    rng = np.random.default_rng(seed)
+    ranges = rng.uniform(0.3, 3.0, grid.count).astype(np.float32)
+    ranges[rng.random(grid.count) < 0.3] = np.nan
+    scan = Scan(grid.angle_min, grid.angle_max, grid.angle_increment, 0.1, 10.0, ranges)
+    placement = Placement.of(PlanarPose(*sensor), Transform())
+    bearing = rng.uniform(-math.pi, math.pi, 400)
+    reach = rng.uniform(0.3, 3.0, 400)
+    # Away from slot boundaries: the kernel's bearing is within 2e-4 rad of arctan2's, 0.12
+    # of a tenth-degree slot.
+    along = np.mod((bearing - grid.angle_min) / grid.angle_increment + 0.5, 1.0)
+    clear = (along > 0.15) & (along < 0.85)
+    bearing, reach = bearing[clear], reach[clear]
+    # The points in the odometry frame, placed from the sensor's pose.
+    world = sensor[2] + bearing
+    x = sensor[0] + reach * np.cos(world)
+    y = sensor[1] + reach * np.sin(world)
+    expected = np.zeros(grid.count, dtype=bool)
+    for slot, r in zip(grid.slot_of(bearing), reach, strict=True):
+        if slot < 0:
+            continue
+        for step in (-1, 0, 1):
+            beside = (slot + step) % grid.count if grid.full_turn else slot + step
+            if 0 <= beside < grid.count and abs(r - float(ranges[beside])) <= 0.10:
+                expected[beside] = True
+    backed = backed_readings(x, y, scan, placement, within=0.10, spread=1)
+    assert np.flatnonzero(backed).tolist() == np.flatnonzero(expected).tolist()
