@@ -813,8 +813,8 @@ def _backed_loop(
     range from the sensor at (ox, oy) (rows of the rotation: xx xy / yx yy).
 
     Compiled: it runs on every output scan over the frame's slab pixels, and numpy's
-    arctan2, hypot and three gathers took 2.1 ms for the 43 520 of the benchmark's frame
-    (`benchmarks/bench_memory.py`), this loop 0.77 ms (one process, the same inputs)."""
+    arctan2, hypot and three gathers took 2.0 ms for the 43 520 of the benchmark's frame
+    (`benchmarks/bench_memory.py`), this loop 0.76 ms (one process, the same inputs)."""
     count = reading.size
     scale = 1.0 / increment
     for i in range(xs.size):
