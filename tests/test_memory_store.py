@@ -128,6 +128,20 @@ def test_slab_points_are_the_pixels_inside_the_slab_and_the_range_limits():
     )
 
 
+def test_slab_points_raise_the_slab_bottom_by_each_pixels_height_noise():
+    # Height 0.2 - y_n Z: a point of row 0 gains a_z = 0.01 m per metre of depth, row 1
+    # none (a level ray). The bottom rises by 2 |a_z| Z^2: to 0.215 for row 0 at 1 m (its
+    # 0.21 is out), and not at all for row 1 (its 0.20 stays in).
+    depth = np.full((3, 4), 1000, dtype=np.uint16)
+    depth[1, 3] = 4000  # beyond range_max
+    x, y = slab_points(
+        depth, TINY, LOOKING_AHEAD, slab=(0.195, 0.5), range_min=0.2, range_max=3.0,
+        bottom_noise=2.0,
+    )  # fmt: skip
+    np.testing.assert_allclose(x, 1.0, atol=1e-6)
+    np.testing.assert_allclose(sorted(y), sorted([0.015, 0.005, -0.005]), atol=1e-6)
+
+
 def test_slab_points_of_a_float_image_skip_nan():
     depth = np.full((3, 4), np.nan, dtype=np.float32)
     depth[0, 1] = 2.0  # x_n = -0.005: at (2, 0.01, 0.2 + 0.02)

@@ -621,6 +621,7 @@ def slab_points(
     range_max: float,
     agreement: float = 0.0,
     lifts: Lifts | None = None,
+    bottom_noise: float = 0.0,
 ) -> tuple[F64, F64]:
     """Every pixel of `depth` whose point lies in the collision slab, in the odometry frame.
 
@@ -631,7 +632,9 @@ def slab_points(
     With `agreement` > 0, only pixels whose left and right neighbours' depths lie within
     that share of their own (a pixel of the image's first or last column has no two).
     `lifts` (`GroundProfile.slab_lifts`: its first two levels, the slab's top and bottom) raise the
-    slab's top and bottom per pixel by the ground under them (a ramp), as the obstacle scan's.
+    slab's top and bottom per pixel by the ground under them (a ramp), as the obstacle scan's;
+    `bottom_noise` raises the bottom by that times |a_z| Z^2, a_z the height a pixel's point
+    gains per metre of depth (`obstacle._depth_interval`'s).
     """
     if not (math.isfinite(agreement) and agreement >= 0.0):
         msg = f'slab_points agreement must be a share >= 0, got {agreement}'
@@ -656,6 +659,7 @@ def slab_points(
         range_min,
         range_max,
         agreement,
+        bottom_noise,
         out_x,
         out_y,
     )
@@ -676,6 +680,7 @@ def _slab_loop(
     range_min: float,
     range_max: float,
     agreement: float,
+    bottom_noise: float,
     out_x: Any,
     out_y: Any,
 ) -> int:
@@ -703,6 +708,9 @@ def _slab_loop(
                 top, bottom = high + lifts[0, block_row, block], low + lifts[1, block_row, block]
             else:
                 top, bottom = high, low
+            if bottom_noise > 0.0:
+                a_z = rotation[2, 0] * x_n[v, u] + rotation[2, 1] * y_n[v, u] + rotation[2, 2]
+                bottom += bottom_noise * abs(a_z) * z * z
             if not bottom <= height <= top:
                 continue
             if agreement > 0.0:

@@ -282,6 +282,7 @@ class FusionPipeline:
                 cluster_spread=self.config.obstacle_cluster_spread,
                 threads=self.config.obstacle_threads,
                 drops=self._drops,
+                bottom_noise=self.config.slab_noise_sigmas * self.config.depth_noise,
             )
             self._projectors.put((camera, extrinsics), (grid,), projector)
         return projector

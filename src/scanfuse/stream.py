@@ -1396,6 +1396,7 @@ class FusionStream(Generic[T]):
             range_min=config.range_min,
             range_max=config.range_max,
             agreement=MEMORY_NEIGHBOUR_AGREEMENT,
+            bottom_noise=own.slab_noise_sigmas * own.depth_noise,
             # The ramps of this frame's ground, as its obstacle scan measured (the same lifts).
             lifts=None
             if profile is None

@@ -263,9 +263,10 @@ def test_a_ramp_seen_from_a_pitching_body_is_floor_too():
 ODD_CAMERA = CameraModel.from_intrinsics(1000, 701, 500.0, 500.0, 499.5, 350.0)
 
 
+@pytest.mark.parametrize('bottom_noise', [0.0, 0.03], ids=['slab', 'slab raised by noise'])
 @pytest.mark.parametrize('camera', [CAMERA, ODD_CAMERA], ids=['848x480', '1000x701'])
 @pytest.mark.parametrize('ramp', [False, True], ids=['plane', 'ramp'])
-def test_the_compiled_height_tables_are_the_numpy_ones(ramp, camera):
+def test_the_compiled_height_tables_are_the_numpy_ones(ramp, camera, bottom_noise):
     from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
     from scanfuse.scan import AngleGrid
     from scanfuse.transforms import Extrinsics
@@ -292,6 +293,7 @@ def test_the_compiled_height_tables_are_the_numpy_ones(ramp, camera):
         ObstacleProjector(
             camera, extrinsics, grid, min_obstacle_height=0.03, max_obstacle_height=0.5,
             range_min=0.2, range_max=3.0, drops=DropLimits(0.05, 0.02, 0.01), use_kernel=kernel,
+            bottom_noise=bottom_noise,
         )
         for kernel in (True, False)
     ]  # fmt: skip

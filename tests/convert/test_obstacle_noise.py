@@ -84,6 +84,50 @@ def test_thin_and_low_obstacles_stay_at_their_front(size, box, front):
     assert front - 0.01 <= robust <= front + SPREAD * front**2 + 0.01
 
 
+def test_the_slab_bottom_stands_a_sigma_of_each_pixels_height_noise_higher():
+    # A point h metres up seen at depth Z from the camera 0.45 m up: its height moves by
+    # a_z = (h - 0.45) / Z per metre of depth, so noise sigma = 0.01 Z^2 moves it by
+    # sigma_h = 0.01 |h - 0.45| Z. The top of a mat 3.8 cm high, 2.7 m ahead: Z = 2.7 cos 20 +
+    # 0.412 sin 20 = 2.678 m, sigma_h 1.10 cm: a bottom a sigma higher (4.10 cm) leaves it
+    # out (its far edge too: 1.22 cm at 3.0 m). 0.8 m ahead: Z = 0.893 m, sigma_h 0.37 cm,
+    # the bottom 3.37 cm: still in. Seen, the mat reads its front or a point of its top
+    # within the window behind it (SPREAD r^2).
+    def ahead(front, bottom_noise):
+        mat = (front, front + 0.3, -0.3, 0.3, 0.0, 0.038)
+        scan = projector(bottom_noise=bottom_noise).scan(render(CAMERA, MOUNT, [mat]))
+        return float(scan.ranges[slot_at(0.0)])
+
+    def on_the_mat(front, reading):
+        return front - 0.01 <= reading <= front + SPREAD * front**2
+
+    assert on_the_mat(2.7, ahead(2.7, 0.0))  # the plain slab: its top 0.8 cm into it
+    assert ahead(2.7, NOISE) == math.inf
+    assert on_the_mat(0.8, ahead(0.8, NOISE))
+
+
+def test_the_slab_bottoms_rise_solves_the_quadratic_of_depth():
+    from scanfuse.convert.obstacle import _depth_interval
+
+    slab = {'min_obstacle_height': 0.03, 'max_obstacle_height': 0.5}
+    limits = {**slab, 'range_min': 0.2, 'range_max': 10.0, 'bottom_noise': 0.03}
+    # Falling 0.2 m per metre of depth from 0.4 m: in the slab while 0.4 - 0.2 Z >= 0.03 +
+    # 0.03 * 0.2 Z^2, i.e. up to the positive root of 0.006 Z^2 + 0.2 Z - 0.37.
+    lo, hi = _depth_interval(np.array([-0.2]), 0.4, 0.4, **limits)
+    assert lo[0] == pytest.approx(0.2)
+    assert hi[0] == pytest.approx(max(np.roots([0.006, 0.2, -0.37]).real), rel=1e-9)
+    assert _depth_interval(np.array([-0.2]), 0.4, 0.4, **{**limits, 'bottom_noise': 0.0})[1][
+        0
+    ] == pytest.approx(0.37 / 0.2)
+    # Rising 0.1 m per metre from the floor: above the bottom between the roots of
+    # 0.003 Z^2 - 0.1 Z + 0.03 (0.3009 and 33.03), below the top up to 5 m.
+    lo, hi = _depth_interval(np.array([0.1]), 0.0, 0.0, **limits)
+    assert lo[0] == pytest.approx(min(np.roots([0.003, -0.1, 0.03]).real), rel=1e-9)
+    assert hi[0] == pytest.approx(5.0)
+    # Rising 0.01 m per metre with a bottom rising 0.01 Z^2: never above it (no real root).
+    lo, hi = _depth_interval(np.array([0.01]), 0.0, 0.0, **{**limits, 'bottom_noise': 1.0})
+    assert lo[0] > hi[0]
+
+
 def test_wall_noise_free_default_within_a_centimetre():
     depth = render(CAMERA, MOUNT, [(2.5, 2.7, -5.0, 5.0, 0.0, 2.0)])
     scan = projector().scan(depth)

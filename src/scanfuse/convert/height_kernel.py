@@ -59,7 +59,8 @@ def _tables(
     """Per pixel the tables (`ObstacleProjector`'s): lo, hi, drop_lo, floor in float32
     metres; lo, hi, drop_lo in uint16 millimetres and the floor in float32 millimetres.
 
-    `limits` = (min_obstacle_height, max_obstacle_height, range_min, range_max); `drops` =
+    `limits` = (min_obstacle_height, max_obstacle_height, range_min, range_max,
+    `obstacle._depth_interval`'s bottom_noise); `drops` =
     (on, min_depth, min_width, noise); `lifts` (4 x block rows x block columns, or 0 rows:
     none; `ground.Lifts.coarse`, blocks of `stride` pixels a side of an image `width` wide)
     the ground's height above the plane at the slab's top, its bottom, the floor crossing
@@ -72,6 +73,7 @@ def _tables(
     if with_drops:
         size = min(size, horizontal.size)
     min_h, max_h, range_min, range_max = limits[0], limits[1], limits[2], limits[3]
+    bottom_noise = limits[4]
     drop = (drops[0], drops[1], drops[2], drops[3])
     rows = size // width
     lifted = lifts.shape[0] >= 4 and lifts.shape[1] * stride >= rows
@@ -92,7 +94,8 @@ def _tables(
             a_z = normal[0] * x_n[i] + normal[1] * y_n[i] + normal[2]
             lo, hi, drop_lo, drop_hi, floor = pixel(
                 a_z, row_lifts[0, u], row_lifts[1, u], row_lifts[2, u], row_lifts[3, u],
-                horizontal[i] if with_drops else 1.0, min_h, max_h, range_min, range_max, drop,
+                horizontal[i] if with_drops else 1.0, min_h, max_h, range_min, range_max,
+                bottom_noise, drop,
             )  # fmt: skip
             metres_lo[i], metres_hi[i], metres_drop[i], metres_floor[i] = lo, hi, drop_lo, floor
             lo_mm, hi_mm = millimetres(lo, hi)
@@ -112,6 +115,7 @@ def _pixel(
     max_h: float,
     range_min: float,
     range_max: float,
+    bottom_noise: float,
     drops: tuple[float, float, float, float],
 ) -> tuple[float, float, float, float, float]:
     """`_tables` of one pixel: its slab interval (lo, hi), drop interval (drop_lo, drop_hi)
@@ -124,9 +128,24 @@ def _pixel(
         lo, hi = math.inf, -math.inf
     elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
         z_top = (max_h - b_top) / a_z
-        z_bottom = (min_h - b_bottom) / a_z
-        lo = max(min(z_top, z_bottom), range_min)
-        hi = min(max(z_top, z_bottom), range_max)
+        constant = min_h - b_bottom
+        if bottom_noise > 0.0:
+            curve = bottom_noise * abs(a_z)
+            discriminant = a_z * a_z - 4.0 * curve * constant
+            if discriminant >= 0.0:
+                q = 0.5 * (a_z + math.copysign(math.sqrt(discriminant), a_z))
+                first, second = q / curve, constant / q
+                bottom_lo, bottom_hi = min(first, second), max(first, second)
+            else:
+                bottom_lo, bottom_hi = math.inf, -math.inf
+        elif a_z > 0.0:
+            bottom_lo, bottom_hi = constant / a_z, math.inf
+        else:
+            bottom_lo, bottom_hi = -math.inf, constant / a_z
+        if a_z > 0.0:
+            lo, hi = max(bottom_lo, range_min), min(z_top, bottom_hi, range_max)
+        else:
+            lo, hi = max(z_top, bottom_lo, range_min), min(bottom_hi, range_max)
     else:
         inside = min_h <= b_bottom and b_top <= max_h
         lo = range_min if inside else math.inf

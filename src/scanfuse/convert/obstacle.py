@@ -313,29 +313,48 @@ def _cluster_range_squared(nearest: F32, spread: float) -> F32:
 
 def _depth_interval(
     a_z: F64,
-    b_z: float | F64,
+    b_top: float | F64,
+    b_bottom: float | F64,
     *,
     min_obstacle_height: float,
     max_obstacle_height: float,
     range_min: float,
     range_max: float,
+    bottom_noise: float = 0.0,
 ) -> tuple[F64, F64]:
     """Per pixel [lo, hi] of depths Z whose point is inside the slab and the range limits.
 
-    lo > hi where the pixel can never see an obstacle (its ray misses the slab).
+    The point at depth Z is a_z Z + b above the ground: b = `b_top` where the line of sight
+    is at the slab's top, `b_bottom` where it is at its bottom (they differ over a ramp).
+    The bottom stands `bottom_noise` |a_z| Z^2 higher (`SLAB_NOISE_SIGMAS`: the depth's
+    noise along the ray moves the point's height by a_z per metre), so the bottom's test is
+    c Z^2 - a_z Z + (min_obstacle_height - b_bottom) <= 0, c = bottom_noise |a_z|: between
+    the roots. lo > hi where the pixel can never see an obstacle (its ray misses the slab).
     """
-    with np.errstate(divide='ignore', invalid='ignore'):
-        at_min = (min_obstacle_height - b_z) / a_z
-        at_max = (max_obstacle_height - b_z) / a_z
     rising = a_z > _LEVEL_RAY
     falling = a_z < -_LEVEL_RAY
-    level_inside = (min_obstacle_height <= b_z) & (b_z <= max_obstacle_height)
-    lo = np.where(
-        rising, at_min, np.where(falling, at_max, np.where(level_inside, -np.inf, np.inf))
-    )
-    hi = np.where(
-        rising, at_max, np.where(falling, at_min, np.where(level_inside, np.inf, -np.inf))
-    )
+    constant = min_obstacle_height - b_bottom
+    with np.errstate(divide='ignore', invalid='ignore'):
+        at_top = (max_obstacle_height - b_top) / a_z
+        if bottom_noise > 0.0:
+            curve = bottom_noise * np.abs(a_z)
+            discriminant = a_z * a_z - 4.0 * curve * constant
+            # The roots as q / c and constant / q: neither cancels (q has a_z's sign).
+            q = 0.5 * (a_z + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), a_z))
+            first, second = q / curve, constant / q
+            real = discriminant >= 0.0
+            bottom_lo = np.where(real, np.minimum(first, second), np.inf)
+            bottom_hi = np.where(real, np.maximum(first, second), -np.inf)
+        else:
+            at_bottom = constant / a_z
+            bottom_lo = np.where(rising, at_bottom, -np.inf)
+            bottom_hi = np.where(falling, at_bottom, np.inf)
+        lo = np.maximum(np.where(falling, at_top, -np.inf), bottom_lo)
+        hi = np.minimum(np.where(rising, at_top, np.inf), bottom_hi)
+    level_inside = (min_obstacle_height <= b_bottom) & (b_top <= max_obstacle_height)
+    level = ~(rising | falling)
+    lo = np.where(level, np.where(level_inside, -np.inf, np.inf), lo)
+    hi = np.where(level, np.where(level_inside, np.inf, -np.inf), hi)
     lo = np.maximum(lo, range_min)
     hi = np.minimum(hi, range_max)
     no_ray = ~np.isfinite(a_z)
@@ -630,8 +649,16 @@ class ObstacleProjector:
         use_kernel: bool = True,
         threads: int = 1,
         drops: DropLimits | None = None,
+        bottom_noise: float = 0.0,
     ) -> None:
         _check_limits(min_obstacle_height, max_obstacle_height, range_min, range_max)
+        if not (math.isfinite(bottom_noise) and bottom_noise >= 0.0):
+            msg = (
+                f'bottom_noise must be finite and at least 0 (the slab bottom rises by it '
+                f'times |a_z| Z^2), got {bottom_noise}'
+            )
+            raise InputError(msg)
+        self.bottom_noise = float(bottom_noise)
         self.min_obstacle_height = float(min_obstacle_height)
         self.max_obstacle_height = float(max_obstacle_height)
         if not 1 <= threads <= MAX_THREADS:
@@ -790,17 +817,15 @@ class ObstacleProjector:
             'max_obstacle_height': self.max_obstacle_height,
             'range_min': self.range_min,
             'range_max': self.range_max,
+            'bottom_noise': self.bottom_noise,
         }
         if lifts is None:
-            lo, hi = _depth_interval(a_z, b_z, **limits)
+            lo, hi = _depth_interval(a_z, b_z, b_z, **limits)
         else:
-            # A falling line of sight enters the slab at its top and leaves it at its bottom;
-            # a rising one the other way: each end above the ground under it.
-            top_lo, top_hi = _depth_interval(a_z, ground.offset - lifts[0], **limits)
-            bottom_lo, bottom_hi = _depth_interval(a_z, ground.offset - lifts[1], **limits)
-            rising = a_z > _LEVEL_RAY
-            lo = np.where(rising, bottom_lo, top_lo)
-            hi = np.where(rising, top_hi, bottom_hi)
+            # The slab's top and bottom each above the ground under the line of sight there.
+            lo, hi = _depth_interval(
+                a_z, ground.offset - lifts[0], ground.offset - lifts[1], **limits
+            )
             b_z = ground.offset - lifts[2]
         if self.drops is None:
             drop_lo = np.full(a_z.shape, np.inf)
@@ -864,7 +889,7 @@ class ObstacleProjector:
             np.empty((4, 0, 0)) if lifts is None else lifts.coarse,
             1 if lifts is None else lifts.stride,
             np.array([self.min_obstacle_height, self.max_obstacle_height, self.range_min,
-                      self.range_max]),
+                      self.range_max, self.bottom_noise]),
             np.zeros(4) if drops is None else np.array(
                 [1.0, drops.min_depth, drops.min_width, drops.noise]
             ),
