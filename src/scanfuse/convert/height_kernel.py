@@ -126,26 +126,26 @@ def _pixel(
     its `drops`."""
     if not math.isfinite(a_z):
         lo, hi = math.inf, -math.inf
-    elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
+    elif (a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY) and bottom_noise > 0.0:
         z_top = (max_h - b_top) / a_z
         constant = min_h - b_bottom
-        if bottom_noise > 0.0:
-            curve = bottom_noise * abs(a_z)
-            discriminant = a_z * a_z - 4.0 * curve * constant
-            if discriminant >= 0.0:
-                q = 0.5 * (a_z + math.copysign(math.sqrt(discriminant), a_z))
-                first, second = q / curve, constant / q
-                bottom_lo, bottom_hi = min(first, second), max(first, second)
-            else:
-                bottom_lo, bottom_hi = math.inf, -math.inf
-        elif a_z > 0.0:
-            bottom_lo, bottom_hi = constant / a_z, math.inf
+        curve = bottom_noise * abs(a_z)
+        discriminant = a_z * a_z - 4.0 * curve * constant
+        if discriminant >= 0.0:
+            q = 0.5 * (a_z + math.copysign(math.sqrt(discriminant), a_z))
+            first, second = q / curve, constant / q
+            bottom_lo, bottom_hi = min(first, second), max(first, second)
         else:
-            bottom_lo, bottom_hi = -math.inf, constant / a_z
+            bottom_lo, bottom_hi = math.inf, -math.inf
         if a_z > 0.0:
             lo, hi = max(bottom_lo, range_min), min(z_top, bottom_hi, range_max)
         else:
             lo, hi = max(z_top, bottom_lo, range_min), min(bottom_hi, range_max)
+    elif a_z > _LEVEL_RAY or a_z < -_LEVEL_RAY:
+        z_top = (max_h - b_top) / a_z
+        z_bottom = (min_h - b_bottom) / a_z
+        lo = max(min(z_top, z_bottom), range_min)
+        hi = min(max(z_top, z_bottom), range_max)
     else:
         inside = min_h <= b_bottom and b_top <= max_h
         lo = range_min if inside else math.inf
