@@ -326,8 +326,9 @@ def _depth_interval(
 
     The point at depth Z is a_z Z + b above the ground: b = `b_top` where the line of sight
     is at the slab's top, `b_bottom` where it is at its bottom (they differ over a ramp).
-    The bottom stands `bottom_noise` |a_z| Z^2 higher (`SLAB_NOISE_SIGMAS`: the depth's
-    noise along the ray moves the point's height by a_z per metre), so the bottom's test is
+    The bottom stands `bottom_noise` |a_z| Z^2 higher (`slab_noise_sigmas` sigmas of the
+    reading's height: its depth's noise, `depth_noise` Z^2 along the ray, moves the point's
+    height by a_z per metre of depth), so the bottom's test is
     c Z^2 - a_z Z + (min_obstacle_height - b_bottom) <= 0, c = bottom_noise |a_z|: between
     the roots. lo > hi where the pixel can never see an obstacle (its ray misses the slab).
     """
@@ -632,6 +633,7 @@ class ObstacleProjector:
     pool); the scan is the same. The compiled kernel is `obstacle_kernel`; this module's
     numpy reduction (`reference=True`, or without numba) is its reference.
     `drops` (a `DropLimits`) also reports drop-offs (see the module docstring); None: off.
+    `bottom_noise` raises the slab's bottom per pixel with its noise (`_depth_interval`).
     """
 
     def __init__(
