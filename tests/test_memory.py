@@ -445,6 +445,35 @@ def test_a_lidar_tilted_beyond_levelling_is_not_matched_and_the_memory_follows_o
     assert offset == pytest.approx(-0.03 * math.pi, abs=2 * 2 * math.pi / READINGS)
 
 
+def test_the_first_level_scan_after_a_tilted_turn_puts_the_memory_back_on_the_walls():
+    # Level, the box ahead is remembered; then the same turn pitched 15 degrees (not
+    # matched: the memory follows odometry's 3 % over-count), and one thing taken on the way
+    # (1 m straight ahead at the end of the turn, where odometry's heading puts it).
+    stream = FusionStream(config())
+    robot = DriftingRobot(stream, [BOX], turning_pitch=0.0)
+    robot.scan()
+    robot.turning_pitch = -math.radians(15.0)
+    robot.turn_to(math.pi, 2.0)
+    assert stream.counts.drift_matched == 0
+    heading = math.pi * OVER_COUNT
+    memory = stream.memory
+    memory.add(np.array([math.cos(heading)]), np.array([math.sin(heading)]), robot.now, robot=(0, 0))
+    # Level again (the IMU says so): matched against the scan before the turn, the
+    # correction takes out the whole over-count, and what the memory took meanwhile moves
+    # with it.
+    robot.turning_pitch = 0.0
+    for _ in range(2):  # the first scan's output leaves with the second
+        stream.add_imu(robot.now + NS // 50, Transform().rotation, 'base_link')
+        behind = robot.scan(camera=False)
+    assert stream.drift.anchored == 1
+    assert stream.drift.correction.yaw == pytest.approx(-0.03 * math.pi, abs=0.002)
+    offset = math.remainder(remembered_bearing(behind.memory_scan) - math.pi, 2 * math.pi)
+    assert abs(offset) <= 2 * 2 * math.pi / READINGS  # the box, taken before: where it is
+    x, y = memory.points()
+    ahead = np.hypot(x + 1.0, y) < 0.01  # 1 m ahead of the robot, which faces -x
+    assert np.count_nonzero(ahead) == 1
+
+
 def test_without_scan_matching_the_box_is_off_by_the_odometry_s_over_count():
     _, behind = turned_half_way(memory_scan_matching=False)
     # Remembered at odom bearing 0; odometry's heading is 1.03 pi, so the box is drawn at

@@ -406,3 +406,39 @@ def test_backed_readings_marks_the_slots_a_brute_force_count_finds(seed, grid, s
                 expected[beside] = True
     backed = backed_readings(x, y, scan, placement, within=0.10, spread=1)
     assert np.flatnonzero(backed).tolist() == np.flatnonzero(expected).tolist()
+
+
+def test_points_seen_since_a_stamp_move_with_the_frames_correction_and_older_ones_stay():
+    memory = ObstacleMemory()
+    memory.add(np.array([1.0]), np.array([0.5]), 1 * NS, robot=ORIGIN)  # before the anchor
+    memory.stand_still(NS)  # a second standing: the memory's clock stops
+    anchor = memory.clock(2 * NS)
+    memory.add(np.array([1.2, 1.5]), np.array([-0.3, 0.2]), 3 * NS, robot=ORIGIN)
+    memory.stand_still(NS)  # and after: the clock the anchor was taken on holds
+    # The frame they were placed on was 0.1 m ahead along x and turned 0.02 rad.
+    move = PlanarPose(-0.1, 0.0, 0.02)
+    assert memory.move_since(anchor, move) == 2
+    x, y = memory.points()
+    c, s = math.cos(0.02), math.sin(0.02)
+    moved = [(c * px - s * py - 0.1, s * px + c * py) for px, py in ((1.2, -0.3), (1.5, 0.2))]
+    got = np.array(sorted(zip(x, y, strict=True)))
+    assert got == pytest.approx(np.array(sorted([(1.0, 0.5), *moved])), abs=1e-9)
+
+
+def test_moved_points_take_the_cells_they_land_in_the_newest_of_each():
+    memory = ObstacleMemory()
+    memory.add(np.array([0.9125]), np.array([0.0125]), 5 * NS, robot=ORIGIN)  # cell (36, 0)
+    memory.add(np.array([1.0125]), np.array([0.0125]), 4 * NS, robot=ORIGIN)  # cell (40, 0)
+    memory.add(np.array([0.8150]), np.array([0.0125]), 3 * NS, robot=ORIGIN)  # cell (32, 0)
+    # Back 0.1 m, what was seen after 3 s: the 5 s point lands on the 3 s one's cell and
+    # takes it; the 4 s one takes the cell the 5 s one left.
+    assert memory.move_since(memory.clock(3 * NS), PlanarPose(-0.1, 0.0, 0.0)) == 2
+    x, _ = memory.points()
+    assert sorted(x.round(6).tolist()) == [0.8125, 0.9125]
+    # Two moved points landing in one cell: the one seen later stays.
+    memory = ObstacleMemory()
+    memory.add(np.array([1.0130]), np.array([0.0125]), 6 * NS, robot=ORIGIN)  # cell (40, 0)
+    memory.add(np.array([1.0260]), np.array([0.0125]), 7 * NS, robot=ORIGIN)  # cell (41, 0)
+    memory.move_since(memory.clock(5 * NS), PlanarPose(-0.005, 0.0, 0.0))  # both to cell 40
+    x, _ = memory.points()
+    assert x.round(6).tolist() == [1.021]  # the 7 s point's

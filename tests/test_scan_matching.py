@@ -279,7 +279,7 @@ def test_a_refused_match_keeps_the_correction_and_starts_a_new_reference():
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)
 
 
-def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference():
+def test_a_tilted_scan_is_refused_and_the_next_level_scan_matches_the_one_before_it():
     drift = DriftCorrection()
     mount = Transform()
     drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)
@@ -291,15 +291,20 @@ def test_a_tilted_scan_is_refused_and_the_next_level_scan_starts_a_new_reference
     assert drift.correction == PlanarPose(0.0, 0.0, 0.0)  # odometry alone meanwhile
     assert drift.refused == {Refusal.TILTED: 1}
     # (No IMU's roll and pitch to level it by.) Level again (up to `max_tilt`): the first
-    # scan is a new reference, the next matches it.
+    # scan is matched against the last level one, before the tilt (the anchor), and the
+    # correction takes out the whole over-count; the next matches it.
     level = drift.settings.max_tilt
-    assert drift.update(room(base_in_room(true)), odometry, mount, tilt=level) is None
+    anchored = drift.update(room(base_in_room(true)), odometry, mount, tilt=level)
+    assert anchored is not None
+    assert anchored.accepted
+    assert drift.anchored == 1
+    assert drift.corrected(odometry).yaw == pytest.approx(0.2, abs=2e-3)
     true, odometry = PlanarPose(0.0, 0.0, 0.4), PlanarPose(0.0, 0.0, 0.4 * OVER_COUNT)
     matched = drift.update(room(base_in_room(true)), odometry, mount, tilt=level)
     assert matched is not None
     assert matched.accepted
-    # The correction takes out the over-count since the new reference, not the one before.
-    assert drift.corrected(odometry).yaw == pytest.approx(0.4 + 0.2 * (OVER_COUNT - 1), abs=2e-3)
+    assert drift.anchored == 1  # matched against the reference the anchor became
+    assert drift.corrected(odometry).yaw == pytest.approx(0.4, abs=2e-3)
 
 
 def test_an_upside_down_lidar_s_matches_are_turned_back_into_the_base_s_turn():
@@ -482,3 +487,59 @@ def test_on_a_ramp_the_imus_tilt_lets_each_scan_be_matched_levelled():
     )
     assert refused is not None
     assert refused.refused is Refusal.TILTED
+
+
+def ramp_corridor(base: PlanarPose, tilt: np.ndarray) -> Scan:
+    """`tilted_room` without the walls across the way (x = +-HALF in the room): up a ramp
+    between walls, what a levelled scan keeps fixes the turn and the shift across the
+    corridor, not the distance along it."""
+    scan = tilted_room(base, tilt)
+    along = base.x + scan.ranges * np.cos(base.yaw + ANGLES)
+    return lidar_scan(np.where(np.abs(along) > HALF - 0.1, np.inf, scan.ranges))
+
+
+def test_a_level_scan_after_a_ramp_takes_out_the_distance_the_wheels_slipped_on_it():
+    drift = DriftCorrection()
+    mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    tilt = pitched(-RAMP_PITCH)
+    slip = 1.1  # climbing, the wheels count 10 % more than the base moves
+    drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)  # level, at the ramp's foot
+    for k in range(1, 6):  # up the ramp, 0.2 m a scan
+        true, odometry = PlanarPose(0.2 * k, 0.0, 0.0), PlanarPose(0.2 * k * slip, 0.0, 0.0)
+        scan = ramp_corridor(base_in_room(true), tilt)
+        result = drift.update(scan, odometry, mount, tilt=RAMP_PITCH, base_tilt=tilt)
+        assert result is not None
+        assert result.accepted, result.refused
+        assert result.fixed == 2
+    # Along the corridor the slip stays: 0.1 m of odometry's, less the part of it across
+    # the walls (the base heads 0.1 rad off them).
+    corrected = drift.corrected(odometry)
+    assert math.hypot(corrected.x - true.x, corrected.y - true.y) > 0.09
+    # Level again (the ramp's top): matched against the scan at its foot, level to level,
+    # the walls across the way fix the distance again.
+    true, odometry = PlanarPose(1.2, 0.0, 0.0), PlanarPose(1.2 * slip, 0.0, 0.0)
+    result = drift.update(room(base_in_room(true)), odometry, mount)
+    assert result is not None
+    assert result.accepted
+    assert result.fixed == 3
+    assert drift.anchored == 1
+    corrected = drift.corrected(odometry)
+    assert math.hypot(corrected.x - true.x, corrected.y - true.y) < 0.005
+    assert corrected.yaw == pytest.approx(0.0, abs=1e-3)
+
+
+def test_level_scans_that_do_not_match_the_anchor_go_on_against_the_current_reference():
+    drift = DriftCorrection()
+    mount = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    drift.update(room(START), PlanarPose(0.0, 0.0, 0.0), mount)  # the anchor: the room
+    start = PlanarPose(0.0, 0.0, 0.0)
+    # Tilted, then level, in front of one wall alone (the room's other walls out of
+    # reach): the anchor's walls are not there to fix all three directions.
+    drift.update(one_wall(start), start, mount, tilt=RAMP_PITCH, base_tilt=np.eye(3))
+    for k in range(1, 8):
+        pose = PlanarPose(0.05 * k, 0.0, 0.0)
+        result = drift.update(one_wall(pose), pose, mount)
+        assert result is not None
+        assert result.accepted, result.refused
+        assert result.fixed == 2
+    assert drift.anchored == 0

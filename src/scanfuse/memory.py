@@ -331,6 +331,33 @@ class ObstacleMemory:
         self._seen_ns[index] = stamp_ns - self._still_ns
         self._key[index] = key
 
+    def clock(self, stamp_ns: int) -> int:
+        """`stamp_ns` (now) on the memory's clock, which stops while the robot stands still
+        (`stand_still`): what `move_since` takes."""
+        return stamp_ns - self._still_ns
+
+    def move_since(self, since: int, move: PlanarPose) -> int:
+        """Move the points seen after `since` (the memory's `clock`) by `move` (p' = R p + t,
+        odometry frame): they were placed on a frame that has since been corrected by that
+        much (`DriftCorrection.anchored_since_ns`). A moved point is newer than any that
+        stays, so it takes the cell it lands in; of several landing in one, the newest, as
+        `add` keeps them. Returns how many moved."""
+        moved = np.flatnonzero((self._key >= 0) & (self._seen_ns > since))
+        if not moved.size:
+            return 0
+        x, y, seen = self._x[moved], self._y[moved], self._seen_ns[moved]
+        self._key[moved] = -1
+        c, s = math.cos(move.yaw), math.sin(move.yaw)
+        x, y = c * x - s * y + move.x, s * x + c * y + move.y
+        index, key = self._cells(x, y)
+        order = np.lexsort((-seen, index))  # per cell, the newest first
+        first = order[np.r_[True, index[order][1:] != index[order][:-1]]]
+        self._x[index[first]] = x[first]
+        self._y[index[first]] = y[first]
+        self._seen_ns[index[first]] = seen[first]
+        self._key[index[first]] = key[first]
+        return int(moved.size)
+
     def add_scan(
         self,
         scan: Scan,

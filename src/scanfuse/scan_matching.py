@@ -494,6 +494,9 @@ KEYFRAME_SHIFT = 0.3
 # `RECENT_MATCHES`; the reference is kept, so the next, straight scan recovers the slip.
 DISTORTION_RATIO = 1.6
 RECENT_MATCHES = 16
+# Level scans after a tilted stretch (a ramp) are also matched against the last reference a
+# level scan made (the anchor), at most this many of them: see `DriftCorrection`.
+ANCHOR_TRIES = 5
 
 
 @dataclass
@@ -502,6 +505,7 @@ class _Keyframe:
     frame_id: str
     odometry: PlanarPose  # the base's odometry pose at the reference scan
     corrected: PlanarPose  # the same, corrected
+    stamp_ns: int  # the reference scan's
 
 
 class DriftCorrection:
@@ -523,6 +527,15 @@ class DriftCorrection:
     level LiDAR would see them, so the turns the wheels slip on a ramp are matched away as
     on the level. Beyond `max_levelled_tilt`, or with no IMU, the scan is not matched: C
     is kept and the next level scan starts a new reference.
+
+    Between a ramp's walls the levelled scans fix the turn and the shift across the
+    corridor, not the distance along it, which stays odometry's while the wheels slip
+    climbing (0.17 m up the simulator's 1:8 ramp on one drive, kept in the memory's frame
+    from then on). So the reference of the last level scan stays as the anchor across a
+    tilted stretch, and the first level scans after it (`ANCHOR_TRIES`) are matched
+    against it too: level to level, the walls at either end of the ramp fix the distance
+    again. A match that fixes all three directions re-anchors C there; otherwise the scan
+    goes on against the current reference as before.
     """
 
     def __init__(self, settings: MatchSettings | None = None) -> None:
@@ -531,15 +544,27 @@ class DriftCorrection:
         self.matched = 0
         self.refused: dict[Refusal, int] = {}
         self.last: Match | None = None
+        self.anchored = 0  # level scans re-anchored to the level reference before a tilt
+        # The stamp of the anchor the last re-anchoring matched: what was placed in the
+        # corrected frame since then was placed on the frame that re-anchoring moved.
+        self.anchored_since_ns: int | None = None
         self._keyframe: _Keyframe | None = None
+        self._anchor: _Keyframe | None = None  # the last level scan's reference
+        self._anchor_tries = 0
         self._recent: deque[float] = deque(maxlen=RECENT_MATCHES)  # residuals of late matches
 
     def reset(self) -> None:
         """Back to odometry (C the identity): the odometry frame itself changed."""
         self.correction = PlanarPose(0.0, 0.0, 0.0)
         self._keyframe = None
+        self._anchor = None
         self.last = None
         self._recent.clear()
+
+    @property
+    def anchor_stamp_ns(self) -> int | None:
+        """The stamp of the anchor's scan (the last level reference; None: none)."""
+        return None if self._anchor is None else self._anchor.stamp_ns
 
     def corrected(self, pose: PlanarPose) -> PlanarPose:
         """An odometry pose of the base in the corrected frame: C composed with it."""
@@ -563,6 +588,7 @@ class DriftCorrection:
             msg = f'drift correction needs a finite odometry pose, got {base}'
             raise InputError(msg)
         settings = self.settings
+        level = tilt <= settings.max_tilt
         if settings.max_tilt < tilt <= settings.max_levelled_tilt and base_tilt is not None:
             scan = levelled(scan, base_tilt, base_to_laser)
             tilt = 0.0
@@ -571,19 +597,17 @@ class DriftCorrection:
             self.refused[Refusal.TILTED] = self.refused.get(Refusal.TILTED, 0) + 1
             self.last = Match(RelativePose(0.0, 0.0, 0.0), Refusal.TILTED, 0, math.nan, 0)
             return self.last
+        sensor = base_to_laser.matrix
+        anchor = self._anchor
+        if level and anchor is not None and anchor is not self._keyframe:
+            anchored = self._anchored(anchor, scan, base, sensor)
+            if anchored is not None:
+                return anchored
         key = self._keyframe
         if key is None or key.frame_id != scan.frame_id:
-            self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, self.corrected(base))
+            self._new_keyframe(scan, base, self.corrected(base), level=level)
             return None
-        sensor = base_to_laser.matrix
-        to_sensor = np.linalg.inv(sensor)
-        move = key.odometry.between(base)
-        predicted = to_sensor @ move.matrix() @ sensor
-        prediction = RelativePose(
-            math.atan2(predicted[1, 0], predicted[0, 0]),
-            float(predicted[0, 3]),
-            float(predicted[1, 3]),
-        )
+        prediction = _predicted(key, base, sensor)
         result = self._screened(match(key.ref, scan, prediction, self.settings), prediction)
         self.last = result
         if result.refused is Refusal.DISTORTED:
@@ -592,25 +616,55 @@ class DriftCorrection:
         if not result.accepted:
             assert result.refused is not None
             self.refused[result.refused] = self.refused.get(result.refused, 0) + 1
-            self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, self.corrected(base))
+            self._new_keyframe(scan, base, self.corrected(base), level=level)
             return result
         self.matched += 1
-        pose = result.pose
-        relative = PlanarPose(pose.tx, pose.ty, pose.yaw).matrix()
-        # The sensor's matched move seen from the base (S T S^-1; exact for a sensor whose z
-        # axis is vertical, up or down, as `PlanarMotion.of_base_move`).
-        moved = sensor @ relative @ to_sensor
-        true_move = PlanarPose(
-            float(moved[0, 3]), float(moved[1, 3]), math.atan2(moved[1, 0], moved[0, 0])
-        )
+        true_move = _base_move(result.pose, sensor)
         corrected = key.corrected.compose(true_move)
         self.correction = corrected.compose(base.inverse())
         if (
             abs(true_move.yaw) > KEYFRAME_TURN
             or math.hypot(true_move.x, true_move.y) > KEYFRAME_SHIFT
         ):
-            self._keyframe = _Keyframe(reference(scan), scan.frame_id, base, corrected)
+            self._new_keyframe(scan, base, corrected, level=level)
         return result
+
+    def _anchored(
+        self, anchor: _Keyframe, scan: Scan, base: PlanarPose, sensor: F64
+    ) -> Match | None:
+        """The level `scan` matched against the anchor, C re-anchored there and both
+        references moved on to it; None (the anchor dropped after `ANCHOR_TRIES` level
+        scans) when the match does not fix all three directions."""
+        if anchor.frame_id == scan.frame_id:
+            # From the corrected poses: the levelled matches since fixed the turns the
+            # wheels slipped at the ramp's foot, which odometry's own move still holds.
+            move = anchor.corrected.between(self.corrected(base))
+            result = match(anchor.ref, scan, _sensor_move(move, sensor), self.settings)
+            if result.accepted and result.fixed == 3:
+                self.matched += 1
+                self.anchored += 1
+                self.anchored_since_ns = anchor.stamp_ns
+                self.last = result
+                corrected = anchor.corrected.compose(_base_move(result.pose, sensor))
+                self.correction = corrected.compose(base.inverse())
+                self._anchor = None  # the new reference is the anchor from now on
+                self._new_keyframe(scan, base, corrected, level=True)
+                return result
+        self._anchor_tries += 1
+        if self._anchor_tries >= ANCHOR_TRIES or anchor.frame_id != scan.frame_id:
+            self._anchor = None  # the next level reference is the anchor
+        return None
+
+    def _new_keyframe(
+        self, scan: Scan, base: PlanarPose, corrected: PlanarPose, *, level: bool
+    ) -> None:
+        """`scan` the reference from now on; a level one also the anchor, unless the
+        anchor is one from before a tilted stretch still being tried (`_anchored`)."""
+        key = _Keyframe(reference(scan), scan.frame_id, base, corrected, scan.stamp_ns)
+        if level and (self._anchor is None or self._anchor is self._keyframe):
+            self._anchor = key
+            self._anchor_tries = 0
+        self._keyframe = key
 
     def _screened(self, result: Match, prediction: RelativePose) -> Match:
         """`result`, or refused as `DISTORTED` when its residual is far above the recent
@@ -624,3 +678,26 @@ class DriftCorrection:
         if result.rms > DISTORTION_RATIO * typical:
             return Match(prediction, Refusal.DISTORTED, result.pairs, result.rms, 0)
         return result
+
+
+def _predicted(key: _Keyframe, base: PlanarPose, sensor: F64) -> RelativePose:
+    """Odometry's move of the sensor (mounted at `sensor` on the base) from `key` to `base`,
+    as points of the current scan to the reference's frame."""
+    return _sensor_move(key.odometry.between(base), sensor)
+
+
+def _sensor_move(move: PlanarPose, sensor: F64) -> RelativePose:
+    """The base's `move` as the sensor's (mounted at `sensor`): S^-1 M S."""
+    predicted = np.linalg.inv(sensor) @ move.matrix() @ sensor
+    return RelativePose(
+        math.atan2(predicted[1, 0], predicted[0, 0]),
+        float(predicted[0, 3]),
+        float(predicted[1, 3]),
+    )
+
+
+def _base_move(pose: RelativePose, sensor: F64) -> PlanarPose:
+    """The sensor's matched move seen from the base (S T S^-1; exact for a sensor whose z
+    axis is vertical, up or down, as `PlanarMotion.of_base_move`)."""
+    moved = sensor @ PlanarPose(pose.tx, pose.ty, pose.yaw).matrix() @ np.linalg.inv(sensor)
+    return PlanarPose(float(moved[0, 3]), float(moved[1, 3]), math.atan2(moved[1, 0], moved[0, 0]))

@@ -314,6 +314,8 @@ class FusionStream(Generic[T]):
         # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
         # matching LiDAR scans (`memory_scan_matching`); every pose the memory uses is C P.
         self.drift = DriftCorrection()
+        # The drift correction's anchor scan: its stamp and the memory's clock then.
+        self._anchor_clock: tuple[int | None, int] = (None, 0)
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         # Per camera, the slab pixels its latest frame gave the memory (that frame's stamp,
@@ -1319,6 +1321,7 @@ class FusionStream(Generic[T]):
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
         tilt = self.imu.tilt_at(scan.stamp_ns)  # None: no IMU sample then, taken as level
+        before, anchored = self.drift.correction, self.drift.anchored
         result = self.drift.update(
             scan,
             base,
@@ -1326,6 +1329,15 @@ class FusionStream(Generic[T]):
             tilt=0.0 if tilt is None else plane_tilt(tilt, base_to_laser),
             base_tilt=None if tilt is None else tilt.rotation_matrix,
         )
+        memory, clock = self.memory, self._anchor_clock
+        if memory is not None:
+            if self.drift.anchored > anchored and clock[0] == self.drift.anchored_since_ns:
+                # Re-anchored after a tilted stretch (a ramp): what the memory took since
+                # the anchor was placed on the frame before, with the slip now taken out.
+                memory.move_since(clock[1], self.drift.correction.compose(before.inverse()))
+            anchor = self.drift.anchor_stamp_ns
+            if anchor is not None and anchor != clock[0]:
+                self._anchor_clock = (anchor, memory.clock(anchor))
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
             self._note_once(
