@@ -457,7 +457,8 @@ def test_the_first_level_scan_after_a_tilted_turn_puts_the_memory_back_on_the_wa
     assert stream.counts.drift_matched == 0
     heading = math.pi * OVER_COUNT
     memory = stream.memory
-    memory.add(np.array([math.cos(heading)]), np.array([math.sin(heading)]), robot.now, robot=(0, 0))
+    ahead_then = (np.array([math.cos(heading)]), np.array([math.sin(heading)]))
+    memory.add(*ahead_then, robot.now, robot=(0.0, 0.0))
     # Level again (the IMU says so): matched against the scan before the turn, the
     # correction takes out the whole over-count, and what the memory took meanwhile moves
     # with it.

@@ -442,3 +442,25 @@ def test_moved_points_take_the_cells_they_land_in_the_newest_of_each():
     memory.move_since(memory.clock(5 * NS), PlanarPose(-0.005, 0.0, 0.0))  # both to cell 40
     x, _ = memory.points()
     assert x.round(6).tolist() == [1.021]  # the 7 s point's
+
+
+def test_after_re_anchoring_each_point_moves_by_the_share_of_the_path_driven_when_it_was_seen():
+    # Up a ramp from x = 0 (the anchor) to 1.5 m, a scan at each half metre (memory clock
+    # 1, 2, 3 s); the correction then moved back 0.15 m: the slip grew with the distance,
+    # so a point seen at 1 s had a third of it, at 2 s two thirds, at 3 s and after all.
+    stream = FusionStream(config())
+    memory = ObstacleMemory()
+    seen_at = (0.5, 1.0, 2.0, 3.0, 4.0)
+    for k, second in enumerate(seen_at):
+        memory.add(
+            np.array([2.0 + 0.1 * k]), np.array([0.0125]), round(second * NS), robot=(1.0, 0.0)
+        )
+    stream._memory_path.extend(
+        (second * NS, PlanarPose(0.5 * second, 0.0, 0.0)) for second in (0, 1, 2, 3)
+    )
+    stream._move_remembered(
+        memory, round(0.75 * NS), PlanarPose(0.0, 0.0, 0.0), PlanarPose(-0.15, 0.0, 0.0)
+    )
+    x, _ = memory.points()
+    slip = np.array([0.0, 0.05, 0.10, 0.15, 0.15])
+    assert sorted(x) == pytest.approx(2.0 + 0.1 * np.arange(5) - slip, abs=1e-9)

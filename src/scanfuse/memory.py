@@ -336,13 +336,16 @@ class ObstacleMemory:
         (`stand_still`): what `move_since` takes."""
         return stamp_ns - self._still_ns
 
-    def move_since(self, since: int, move: PlanarPose) -> int:
-        """Move the points seen after `since` (the memory's `clock`) by `move` (p' = R p + t,
-        odometry frame): they were placed on a frame that has since been corrected by that
-        much (`DriftCorrection.anchored_since_ns`). A moved point is newer than any that
-        stays, so it takes the cell it lands in; of several landing in one, the newest, as
-        `add` keeps them. Returns how many moved."""
-        moved = np.flatnonzero((self._key >= 0) & (self._seen_ns > since))
+    def move_since(self, since: int, move: PlanarPose, until: int | None = None) -> int:
+        """Move the points seen after `since` (the memory's `clock`; and at or before
+        `until`) by `move` (p' = R p + t, odometry frame): they were placed on a frame that
+        has since been corrected by that much (`DriftCorrection.anchored_since_ns`). One
+        point per cell, the newest, as `add` keeps them: a moved point takes the cell it
+        lands in unless that holds a newer one. Returns how many moved."""
+        chosen = (self._key >= 0) & (self._seen_ns > since)
+        if until is not None:
+            chosen &= self._seen_ns <= until
+        moved = np.flatnonzero(chosen)
         if not moved.size:
             return 0
         x, y, seen = self._x[moved], self._y[moved], self._seen_ns[moved]
@@ -352,6 +355,8 @@ class ObstacleMemory:
         index, key = self._cells(x, y)
         order = np.lexsort((-seen, index))  # per cell, the newest first
         first = order[np.r_[True, index[order][1:] != index[order][:-1]]]
+        there = index[first]
+        first = first[(self._key[there] < 0) | (self._seen_ns[there] <= seen[first])]
         self._x[index[first]] = x[first]
         self._y[index[first]] = y[first]
         self._seen_ns[index[first]] = seen[first]

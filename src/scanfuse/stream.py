@@ -50,6 +50,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from itertools import pairwise
 from typing import TYPE_CHECKING, Generic, TypeVar, cast
 
 import numpy as np
@@ -136,6 +137,8 @@ STILL_TURN_RATE = 0.02
 DESKEW_SAMPLES = 9
 # Scans kept for `publish_rate`: only the freshest within max_time_offset of a stamp is used.
 RATE_SCANS = 8
+# Scans of the memory's path kept (`_move_remembered`): 5 minutes of a 10 Hz LiDAR.
+MEMORY_PATH_SCANS = 3000
 
 
 def seconds_to_ns(seconds: float) -> int:
@@ -314,8 +317,10 @@ class FusionStream(Generic[T]):
         # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
         # matching LiDAR scans (`memory_scan_matching`); every pose the memory uses is C P.
         self.drift = DriftCorrection()
-        # The drift correction's anchor scan: its stamp and the memory's clock then.
-        self._anchor_clock: tuple[int | None, int] = (None, 0)
+        # The drift correction's anchor scan: its stamp, the memory's clock and the base's
+        # odometry pose then; and per scan since, the clock and the pose (`_move_remembered`).
+        self._anchor_clock: tuple[int | None, int, PlanarPose] = (None, 0, PlanarPose(0, 0, 0))
+        self._memory_path: deque[tuple[int, PlanarPose]] = deque(maxlen=MEMORY_PATH_SCANS)
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         # Per camera, the slab pixels its latest frame gave the memory (that frame's stamp,
@@ -1329,15 +1334,17 @@ class FusionStream(Generic[T]):
             tilt=0.0 if tilt is None else plane_tilt(tilt, base_to_laser),
             base_tilt=None if tilt is None else tilt.rotation_matrix,
         )
-        memory, clock = self.memory, self._anchor_clock
+        memory, (stamp, clock, at) = self.memory, self._anchor_clock
         if memory is not None:
-            if self.drift.anchored > anchored and clock[0] == self.drift.anchored_since_ns:
+            if self.drift.anchored > anchored and stamp == self.drift.anchored_since_ns:
                 # Re-anchored after a tilted stretch (a ramp): what the memory took since
                 # the anchor was placed on the frame before, with the slip now taken out.
-                memory.move_since(clock[1], self.drift.correction.compose(before.inverse()))
+                change = self.drift.correction.compose(before.inverse())
+                self._move_remembered(memory, clock, at, change)
             anchor = self.drift.anchor_stamp_ns
-            if anchor is not None and anchor != clock[0]:
-                self._anchor_clock = (anchor, memory.clock(anchor))
+            if anchor is not None and anchor != stamp:
+                self._anchor_clock = (anchor, memory.clock(anchor), base)
+            self._memory_path.append((memory.clock(scan.stamp_ns), base))
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
             self._note_once(
@@ -1348,6 +1355,26 @@ class FusionStream(Generic[T]):
         elif result is not None:
             self.counts.drift_matched += 1
         return self.drift.corrected(base)
+
+    def _move_remembered(
+        self, memory: ObstacleMemory, since: int, start: PlanarPose, change: PlanarPose
+    ) -> None:
+        """Move what `memory` took after `since` (its clock), on the frame the drift
+        correction has just moved by `change`, by the share of `change` the wheels had
+        slipped by then: the share of the path from `start` (odometry, the anchor's) they
+        had driven (slip grows with the distance driven; what is taken after the last scan
+        of the path, all of it)."""
+        path = [(clock, pose) for clock, pose in self._memory_path if clock > since]
+        lengths = np.cumsum(
+            [math.hypot(b.x - a.x, b.y - a.y) for a, b in pairwise([start, *(p for _, p in path)])]
+        )
+        total = float(lengths[-1]) if lengths.size else 0.0
+        for (clock, _), length in zip(path, lengths, strict=True):
+            share = float(length) / total if total > 0.0 else 1.0
+            part = PlanarPose(change.x * share, change.y * share, change.yaw * share)
+            memory.move_since(since, part, until=clock)
+            since = clock
+        memory.move_since(since, change)
 
     def _clear_seen(
         self,
