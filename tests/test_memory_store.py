@@ -455,12 +455,13 @@ def test_after_re_anchoring_each_point_moves_by_the_share_of_the_path_driven_whe
         memory.add(
             np.array([2.0 + 0.1 * k]), np.array([0.0125]), round(second * NS), robot=(1.0, 0.0)
         )
+    # Per scan: its stamp, the memory's clock (the same: the robot never stood) and the pose;
+    # the anchor's scan at 0.75 s, at x = 0.
     stream._memory_path.extend(
-        (second * NS, PlanarPose(0.5 * second, 0.0, 0.0)) for second in (0, 1, 2, 3)
+        (round(second * NS), round(second * NS), PlanarPose(x, 0.0, 0.0))
+        for second, x in ((0.75, 0.0), (1, 0.5), (2, 1.0), (3, 1.5))
     )
-    stream._move_remembered(
-        memory, round(0.75 * NS), PlanarPose(0.0, 0.0, 0.0), PlanarPose(-0.15, 0.0, 0.0)
-    )
+    stream._move_remembered(memory, round(0.75 * NS), PlanarPose(-0.15, 0.0, 0.0))
     x, _ = memory.points()
     slip = np.array([0.0, 0.05, 0.10, 0.15, 0.15])
     assert sorted(x) == pytest.approx(2.0 + 0.1 * np.arange(5) - slip, abs=1e-9)

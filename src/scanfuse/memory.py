@@ -52,6 +52,7 @@ from scanfuse.compiled import compiled
 from scanfuse.config import MAX_MEMORY_CELLS, memory_grid_side
 from scanfuse.distortion import distortion_coefficients
 from scanfuse.errors import InputError
+from scanfuse.motion import PlanarMotion
 from scanfuse.scan import TWO_PI
 
 if TYPE_CHECKING:
@@ -350,8 +351,8 @@ class ObstacleMemory:
             return 0
         x, y, seen = self._x[moved], self._y[moved], self._seen_ns[moved]
         self._key[moved] = -1
-        c, s = math.cos(move.yaw), math.sin(move.yaw)
-        x, y = c * x - s * y + move.x, s * x + c * y + move.y
+        motion = PlanarMotion(math.cos(move.yaw), math.sin(move.yaw), move.x, move.y)
+        x, y = motion.apply(x, y)
         index, key = self._cells(x, y)
         order = np.lexsort((-seen, index))  # per cell, the newest first
         first = order[np.r_[True, index[order][1:] != index[order][:-1]]]

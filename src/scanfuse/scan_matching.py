@@ -561,11 +561,6 @@ class DriftCorrection:
         self.last = None
         self._recent.clear()
 
-    @property
-    def anchor_stamp_ns(self) -> int | None:
-        """The stamp of the anchor's scan (the last level reference; None: none)."""
-        return None if self._anchor is None else self._anchor.stamp_ns
-
     def corrected(self, pose: PlanarPose) -> PlanarPose:
         """An odometry pose of the base in the corrected frame: C composed with it."""
         return self.correction.compose(pose)

@@ -317,10 +317,9 @@ class FusionStream(Generic[T]):
         # Where the memory's frame lies in odometry's: wheel odometry's drift undone by
         # matching LiDAR scans (`memory_scan_matching`); every pose the memory uses is C P.
         self.drift = DriftCorrection()
-        # The drift correction's anchor scan: its stamp, the memory's clock and the base's
-        # odometry pose then; and per scan since, the clock and the pose (`_move_remembered`).
-        self._anchor_clock: tuple[int | None, int, PlanarPose] = (None, 0, PlanarPose(0, 0, 0))
-        self._memory_path: deque[tuple[int, PlanarPose]] = deque(maxlen=MEMORY_PATH_SCANS)
+        # Per scan the memory was placed for: its stamp, the memory's clock and the base's
+        # odometry pose then (`_move_remembered`).
+        self._memory_path: deque[tuple[int, int, PlanarPose]] = deque(maxlen=MEMORY_PATH_SCANS)
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
         # Per camera, the slab pixels its latest frame gave the memory (that frame's stamp,
@@ -1334,17 +1333,14 @@ class FusionStream(Generic[T]):
             tilt=0.0 if tilt is None else plane_tilt(tilt, base_to_laser),
             base_tilt=None if tilt is None else tilt.rotation_matrix,
         )
-        memory, (stamp, clock, at) = self.memory, self._anchor_clock
+        memory, anchor_ns = self.memory, self.drift.anchored_since_ns
         if memory is not None:
-            if self.drift.anchored > anchored and stamp == self.drift.anchored_since_ns:
+            if self.drift.anchored > anchored and anchor_ns is not None:
                 # Re-anchored after a tilted stretch (a ramp): what the memory took since
                 # the anchor was placed on the frame before, with the slip now taken out.
                 change = self.drift.correction.compose(before.inverse())
-                self._move_remembered(memory, clock, at, change)
-            anchor = self.drift.anchor_stamp_ns
-            if anchor is not None and anchor != stamp:
-                self._anchor_clock = (anchor, memory.clock(anchor), base)
-            self._memory_path.append((memory.clock(scan.stamp_ns), base))
+                self._move_remembered(memory, anchor_ns, change)
+            self._memory_path.append((scan.stamp_ns, memory.clock(scan.stamp_ns), base))
         if result is not None and result.refused is not None:
             self.counts.drift_refused += 1
             self._note_once(
@@ -1356,20 +1352,23 @@ class FusionStream(Generic[T]):
             self.counts.drift_matched += 1
         return self.drift.corrected(base)
 
-    def _move_remembered(
-        self, memory: ObstacleMemory, since: int, start: PlanarPose, change: PlanarPose
-    ) -> None:
-        """Move what `memory` took after `since` (its clock), on the frame the drift
+    def _move_remembered(self, memory: ObstacleMemory, anchor_ns: int, change: PlanarPose) -> None:
+        """Move what `memory` took after the scan at `anchor_ns`, on the frame the drift
         correction has just moved by `change`, by the share of `change` the wheels had
-        slipped by then: the share of the path from `start` (odometry, the anchor's) they
-        had driven (slip grows with the distance driven; what is taken after the last scan
-        of the path, all of it)."""
-        path = [(clock, pose) for clock, pose in self._memory_path if clock > since]
+        slipped by then: the share of the path from the anchor they had driven (slip grows
+        with the distance driven; what was taken after the last scan of the path, all of
+        it). Nothing moves when the anchor's scan has left the path."""
+        path = list(self._memory_path)
+        start = next((k for k, (stamp, _, _) in enumerate(path) if stamp == anchor_ns), None)
+        if start is None:
+            return
+        steps = path[start:]
         lengths = np.cumsum(
-            [math.hypot(b.x - a.x, b.y - a.y) for a, b in pairwise([start, *(p for _, p in path)])]
+            [math.hypot(b.x - a.x, b.y - a.y) for (_, _, a), (_, _, b) in pairwise(steps)]
         )
         total = float(lengths[-1]) if lengths.size else 0.0
-        for (clock, _), length in zip(path, lengths, strict=True):
+        since = steps[0][1]
+        for (_, clock, _), length in zip(steps[1:], lengths, strict=True):
             share = float(length) / total if total > 0.0 else 1.0
             part = PlanarPose(change.x * share, change.y * share, change.yaw * share)
             memory.move_since(since, part, until=clock)
