@@ -467,6 +467,7 @@ def _profile(
         for b in range(bins):
             centre = (b + 0.5) * bin_size
             total, spread, found, above, below = 0.0, 0.0, 0, 0, 0
+            face = math.inf  # the nearest point clearly above any floor's rise
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
                 run = radius[c, j] - at
@@ -478,17 +479,34 @@ def _profile(
                     found += 1
                 elif rise > clear:
                     above += 1
+                    face = min(face, radius[c, j])
                 elif rise < -clear:
                     below += 1
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it.
                 reach = tan_slope * min(max(centre - at, 0.0), bin_size)
-                # An obstacle's face (many points above any floor's rise) or a drop's (many
-                # below) stands in this bin: the ground does not rise or fall into it.
-                top = ground if above >= max(2, found // 4) else ground + reach
+                top = ground + reach
+                mean = total / found
+                if above >= max(2, found // 4):
+                    # An obstacle's face stands in this bin: the ground rises only as far as
+                    # the floor seen in front of it (a box on a ramp stands on the ramp), not
+                    # to the face's foot; with no floor in front it is held.
+                    front, in_front = 0.0, 0
+                    for k in range(starts[b], starts[b + 1]):
+                        j = order[k]
+                        if radius[c, j] < face and candidate(
+                            height[c, j] - ground, radius[c, j] - at, tan_slope, allowed[c, j]
+                        ):
+                            front += height[c, j]
+                            in_front += 1
+                    top = ground
+                    if in_front > 0:
+                        top += min(max(front / in_front - ground, 0.0), reach)
+                # A drop's edge (many points below) stands in this bin: the ground does not
+                # fall into it.
                 bottom = ground if below >= max(2, found // 4) else ground - reach
-                ground = min(max(total / found, bottom), top)
+                ground = min(max(mean, bottom), top)
                 at = centre
                 seen[c, b] = True
                 # Off by more than the deadband (what the slab's bottom can afford) and than
