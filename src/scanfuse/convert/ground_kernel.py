@@ -397,9 +397,10 @@ def _profile(
     tan_slope * run and their noise of the last ground, run their horizontal distance from it),
     clamped to tan_slope * min(run, bin_size): the profile never rises or falls faster than the
     steepest floor, however the points creep (an obstacle's face, a step, a drop are not
-    ground). It does not rise (fall) in a bin where many points stand clearly above (below) any
-    floor's rise: an obstacle's face, a drop's edge. A bin without ground keeps the last ground;
-    if it holds an obstacle's or a drop's points, the last ground's place moves on to it (the
+    ground). In a bin where many points stand clearly above any floor's rise (an obstacle's
+    face) it rises only to the ground seen in front of the nearest of them, not to the face's
+    foot; it does not fall in one where many stand below (a drop's edge). A bin without ground
+    keeps the last ground; if it holds an obstacle's or a drop's points, the last ground's place moves on to it (the
     ground is held level under an obstacle and across a drop: neither a box's top nor a drop's
     far floor becomes ground by distance alone). At the end, a bin without ground takes the
     ground of the nearest column within FILL_COLUMNS that saw it there.
