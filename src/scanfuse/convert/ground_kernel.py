@@ -398,12 +398,13 @@ def _profile(
     clamped to tan_slope * min(run, bin_size): the profile never rises or falls faster than the
     steepest floor, however the points creep (an obstacle's face, a step, a drop are not
     ground). In a bin where many points stand clearly above any floor's rise (an obstacle's
-    face) it rises only to the ground seen in front of the nearest of them, not to the face's
-    foot; it does not fall in one where many stand below (a drop's edge). A bin without ground
-    keeps the last ground; if it holds an obstacle's or a drop's points, the last ground's place moves on to it (the
-    ground is held level under an obstacle and across a drop: neither a box's top nor a drop's
-    far floor becomes ground by distance alone). At the end, a bin without ground takes the
-    ground of the nearest column within FILL_COLUMNS that saw it there.
+    face) it does not rise to the face's foot: it goes on at its last rise where the column's
+    ground already stood off the plane (a ramp's, under a box on it), else it is held; it does
+    not fall in one where many stand below (a drop's edge). A bin without ground keeps the
+    last ground; if it holds an obstacle's or a drop's points, the last ground's place moves
+    on to it (the ground is held level under an obstacle and across a drop: neither a box's
+    top nor a drop's far floor becomes ground by distance alone). At the end, a bin without
+    ground takes the ground of the nearest column within FILL_COLUMNS that saw it there.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
     the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
@@ -463,12 +464,12 @@ def _profile(
                 order[filled[slot[c, j]]] = j
                 filled[slot[c, j]] += 1
         ground, at, sigma = 0.0, 0.0, 0.0
+        trend = 0.0  # the ground's last rise per metre, between the last two bins seen
         streak = 0
         evidence[c] = 0
         for b in range(bins):
             centre = (b + 0.5) * bin_size
             total, spread, found, above, below = 0.0, 0.0, 0, 0, 0
-            face = math.inf  # the nearest point clearly above any floor's rise
             for k in range(starts[b], starts[b + 1]):
                 j = order[k]
                 run = radius[c, j] - at
@@ -480,7 +481,6 @@ def _profile(
                     found += 1
                 elif rise > clear:
                     above += 1
-                    face = min(face, radius[c, j])
                 elif rise < -clear:
                     below += 1
             if found > 0:
@@ -488,26 +488,21 @@ def _profile(
                 # points) the ground does not jump to stray points far beyond it.
                 reach = tan_slope * min(max(centre - at, 0.0), bin_size)
                 top = ground + reach
-                mean = total / found
                 if above >= max(2, found // 4):
-                    # An obstacle's face stands in this bin: the ground rises only as far as
-                    # the floor seen in front of it (a box on a ramp stands on the ramp), not
-                    # to the face's foot; with no floor in front it is held.
-                    front, in_front = 0.0, 0
-                    for k in range(starts[b], starts[b + 1]):
-                        j = order[k]
-                        if radius[c, j] < face and candidate(
-                            height[c, j] - ground, radius[c, j] - at, tan_slope, allowed[c, j]
-                        ):
-                            front += height[c, j]
-                            in_front += 1
+                    # An obstacle's face stands in this bin: the ground does not rise to the
+                    # face's foot. On a ramp already seen rising (off the plane beyond its
+                    # noise) it goes on at the ramp's last rise (a box on a ramp stands on
+                    # the ramp); elsewhere it is held (a flat floor's noise is no trend).
                     top = ground
-                    if in_front > 0:
-                        top += min(max(front / in_front - ground, 0.0), reach)
+                    if streak > 0:
+                        top += min(max(trend, 0.0) * max(centre - at, 0.0), reach)
                 # A drop's edge (many points below) stands in this bin: the ground does not
                 # fall into it.
                 bottom = ground if below >= max(2, found // 4) else ground - reach
-                ground = min(max(mean, bottom), top)
+                last = ground
+                ground = min(max(total / found, bottom), top)
+                if centre > at:
+                    trend = (ground - last) / (centre - at)
                 at = centre
                 seen[c, b] = True
                 # Off by more than the deadband (what the slab's bottom can afford) and than
