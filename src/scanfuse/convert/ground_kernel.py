@@ -45,6 +45,10 @@ ABOVE = 0.003
 FACE = 0.01
 # Sampled columns either side a profile bin without ground looks for one that saw it.
 FILL_COLUMNS = 2
+# Bins in a row a column's ground must have stood off the plane (as many as make a frame's
+# profile at all, `ground.PROFILE_EVIDENCE`) before the bin of an obstacle's face goes on at
+# its last rise: with one, a flat floor's noise 2-3 m out lifted the ground under low boxes.
+RAMP_BINS = 3
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -399,12 +403,13 @@ def _profile(
     steepest floor, however the points creep (an obstacle's face, a step, a drop are not
     ground). In a bin where many points stand clearly above any floor's rise (an obstacle's
     face) it does not rise to the face's foot: it goes on at its last rise where the column's
-    ground already stood off the plane (a ramp's, under a box on it), else it is held; it does
-    not fall in one where many stand below (a drop's edge). A bin without ground keeps the
-    last ground; if it holds an obstacle's or a drop's points, the last ground's place moves
-    on to it (the ground is held level under an obstacle and across a drop: neither a box's
-    top nor a drop's far floor becomes ground by distance alone). At the end, a bin without
-    ground takes the ground of the nearest column within FILL_COLUMNS that saw it there.
+    ground already stood off the plane for RAMP_BINS bins (a ramp's, under a box on it), else
+    it is held; it does not fall in one where many stand below (a drop's edge). A bin without
+    ground keeps the last ground; if it holds an obstacle's or a drop's points, the last
+    ground's place moves on to it (the ground is held level under an obstacle and across a
+    drop: neither a box's top nor a drop's far floor becomes ground by distance alone). At the
+    end, a bin without ground takes the ground of the nearest column within FILL_COLUMNS that
+    saw it there.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
     the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
@@ -490,11 +495,11 @@ def _profile(
                 top = ground + reach
                 if above >= max(2, found // 4):
                     # An obstacle's face stands in this bin: the ground does not rise to the
-                    # face's foot. On a ramp already seen rising (off the plane beyond its
-                    # noise) it goes on at the ramp's last rise (a box on a ramp stands on
-                    # the ramp); elsewhere it is held (a flat floor's noise is no trend).
+                    # face's foot. On a ramp already seen off the plane (beyond its noise,
+                    # RAMP_BINS in a row) it goes on at the ramp's last rise (a box on a ramp
+                    # stands on the ramp); elsewhere it is held.
                     top = ground
-                    if streak > 0:
+                    if streak >= RAMP_BINS:
                         top += min(max(trend, 0.0) * max(centre - at, 0.0), reach)
                 # A drop's edge (many points below) stands in this bin: the ground does not
                 # fall into it.
