@@ -1274,7 +1274,7 @@ class FusionStream(Generic[T]):
         self._memory_placed_ns = scan.stamp_ns
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
         pose = self._corrected(scan, base.pose, base_to_output)
-        placement = Placement.of(pose, base_to_output, self.imu.tilt_at(scan.stamp_ns))
+        placement = Placement.of(pose, base_to_output)
         robot = (pose.x, pose.y)
         # Every camera forgets what it sees free (a rear camera behind a reversing robot)
         # and remembers its slab, each frame once, with its own slab and floor.
