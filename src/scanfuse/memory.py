@@ -510,13 +510,13 @@ class ObstacleMemory:
             range_min,
             range_max,
             np.asarray(CLEAR_MARGIN),
-            *_profile_arrays(profile),
+            *profile_arrays(profile),
         )
         self.cleared += cleared
         return int(cleared)
 
 
-def _profile_arrays(profile: GroundProfile | None) -> tuple[Any, ...]:
+def profile_arrays(profile: GroundProfile | None) -> tuple[Any, ...]:
     """A profile's columns, heights, bin size and horizontal axes as `_clear_loop` takes
     them (no columns: no profile)."""
     if profile is None:

@@ -85,6 +85,7 @@ from scanfuse.output import (
 from scanfuse.pipeline import StageTimings
 from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
+from scanfuse.seen_ground import on_seen_ground
 from scanfuse.trail import GroundTrail
 from scanfuse.transforms import BODY_TO_OPTICAL, Extrinsics, Transform
 
@@ -225,6 +226,7 @@ class StreamCounts:
     peak_frames: int = 0
     imu_missed: int = 0  # depth frames with no IMU sample near them, once an IMU was heard
     lidar_on_ground: int = 0  # LiDAR readings dropped as the ground driven over (`trail`)
+    lidar_on_seen_ground: int = 0  # ... as the ground a camera sees (`seen_ground`)
 
     @property
     def passed_through(self) -> int:
@@ -256,6 +258,7 @@ class _Seen:
     compensation: Compensation = Compensation.OFF
     timings: StageTimings | None = None
     slab_slots: Mask | None = None  # `FusedResult.slab_slots`
+    mount: Transform | None = None  # the camera's optical frame on the base, as mounted
 
 
 @dataclass(frozen=True)
@@ -834,6 +837,7 @@ class FusionStream(Generic[T]):
                 pending.token, pending.arrived_ns, seen, base_to_output,
                 lidar=clean, fused=fused, deskewed=deskewed,
             )  # fmt: skip
+        lidar = self._off_the_seen_ground(lidar, seen, base_to_output)
         return self._assemble(
             pending.token, pending.arrived_ns, seen, base_to_output,
             lidar=lidar, fused=lidar, deskewed=deskewed,
@@ -963,7 +967,7 @@ class FusionStream(Generic[T]):
             return _Seen(feed, Passed.FUSION_FAILED, frame)
         return _Seen(
             feed, None, frame, result.depth_scan, extrinsics, compensation, result.timings,
-            result.slab_slots,
+            result.slab_slots, mount,
         )  # fmt: skip
 
     def _camera_mount(
@@ -1251,6 +1255,43 @@ class FusionStream(Generic[T]):
         kept = scan.ranges.copy()
         kept[np.flatnonzero(valid)[on_ground]] = np.nan
         return scan.with_ranges(kept)
+
+    def _off_the_seen_ground(
+        self, lidar: Scan, seen: list[_Seen], base_to_output: Transform
+    ) -> Scan:
+        """`lidar` (in the output frame, at `base_to_output` on the base) without the readings
+        that lie on the ground a paired camera sees in its frame, below its slab (NaN;
+        `scanfuse.seen_ground`): a tilted LiDAR's plane meeting the floor. The frame is taken
+        at the scan's stamp: within max_time_offset the robot moves a few centimetres, and the
+        floor's height changes by a fraction of that."""
+        if self.config.method is not Method.OBSTACLE:
+            return lidar
+        valid = lidar_readings(lidar)
+        if not valid.any():
+            return lidar
+        in_base = base_to_output.apply(lidar_points(lidar, valid))
+        on_ground = np.zeros(int(valid.sum()), dtype=np.bool_)
+        for camera in seen:
+            frame, extrinsics, mount = camera.frame, camera.extrinsics, camera.mount
+            if camera.reason is not None or frame is None or extrinsics is None or mount is None:
+                continue
+            own = camera.feed.config
+            on_ground |= on_seen_ground(
+                mount.inverse().apply(in_base),
+                frame.depth,
+                frame.camera,
+                GroundPlane.of_mounting(extrinsics.base_to_camera_optical),
+                None if camera.feed.ground is None else camera.feed.ground.profile,
+                below=own.min_obstacle_height,
+                range_min=own.range_min,
+                range_max=own.range_max,
+            )
+        if not on_ground.any():
+            return lidar
+        self.counts.lidar_on_seen_ground += int(on_ground.sum())
+        kept = lidar.ranges.copy()
+        kept[np.flatnonzero(valid)[on_ground]] = np.nan
+        return lidar.with_ranges(kept)
 
     # ------------------------------------------------------------ memory
 
