@@ -513,6 +513,7 @@ class LiveFusion:
             'LiDAR readings on the ground driven over': (
                 str(counts.lidar_on_ground) if self.stream.trail is not None else 'off'
             ),
+            'LiDAR readings on the ground a camera sees': str(counts.lidar_on_seen_ground),
             'remembered points': str(len(self.stream.memory)) if self.stream.memory else 'off',
             'memory dropped': str(counts.memory_dropped),
             'memory scan matches (accepted / refused)': (
