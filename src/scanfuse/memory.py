@@ -557,6 +557,25 @@ def _ground_under(
     return float(profile[c, b] + share * (profile[c, b + 1] - profile[c, b]))
 
 
+def _pixel_of(
+    ox: float, oy: float, z: float, fx: float, fy: float, cx: float, cy: float, d: Any
+) -> tuple[int, int]:
+    """The pixel (u, v) of the optical-frame point (ox, oy, z), z > 0, through the lens's
+    distortion (`d`: `distortion_coefficients`' eight, zeros for none)."""
+    xn = ox / z
+    yn = oy / z
+    r2 = xn * xn + yn * yn
+    radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (
+        1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
+    )
+    xd = xn * radial + 2.0 * d[2] * xn * yn + d[3] * (r2 + 2.0 * xn * xn)
+    yd = yn * radial + d[2] * (r2 + 2.0 * yn * yn) + 2.0 * d[3] * xn * yn
+    return round(fx * xd + cx), round(fy * yd + cy)
+
+
+pixel_of = compiled(_pixel_of)
+
+
 def _clear_loop(
     keys: Any,
     xs: Any,
@@ -611,16 +630,7 @@ def _clear_loop(
             if not range_min <= z <= range_max:
                 looked_at = False
                 break
-            xn = ox / z
-            yn = oy / z
-            r2 = xn * xn + yn * yn
-            radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (
-                1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
-            )
-            xd = xn * radial + 2.0 * d[2] * xn * yn + d[3] * (r2 + 2.0 * xn * xn)
-            yd = yn * radial + d[2] * (r2 + 2.0 * yn * yn) + 2.0 * d[3] * xn * yn
-            u = round(fx * xd + cx)
-            v = round(fy * yd + cy)
+            u, v = pixel_of(ox, oy, z, fx, fy, cx, cy, d)
             if not (0 <= u < columns and 0 <= v < rows):
                 looked_at = False
                 break

@@ -20,7 +20,7 @@ import numpy as np
 
 from scanfuse.compiled import compiled
 from scanfuse.distortion import distortion_coefficients
-from scanfuse.memory import ground_under, profile_arrays
+from scanfuse.memory import ground_under, pixel_of, profile_arrays
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -65,16 +65,7 @@ def _on_ground_loop(
         out[i] = False
         if not range_min <= z <= range_max:
             continue
-        xn = x / z
-        yn = y / z
-        r2 = xn * xn + yn * yn
-        radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (
-            1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))
-        )
-        xd = xn * radial + 2.0 * d[2] * xn * yn + d[3] * (r2 + 2.0 * xn * xn)
-        yd = yn * radial + d[2] * (r2 + 2.0 * yn * yn) + 2.0 * d[3] * xn * yn
-        u = round(fx * xd + cx)
-        v = round(fy * yd + cy)
+        u, v = pixel_of(x, y, z, fx, fy, cx, cy, d)
         if not (0 <= u < columns and 0 <= v < rows):
             continue
         measured = depth[v, u] * scale
