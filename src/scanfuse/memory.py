@@ -486,13 +486,7 @@ class ObstacleMemory:
         """
         low, high = slab
         heights = np.array([low + (high - low) * f for f in CLEAR_HEIGHTS])
-        if camera.has_distortion:
-            coefficients = distortion_coefficients(camera.distortion_model, camera.distortion)
-        else:
-            coefficients = np.zeros(8)
-        image = np.ascontiguousarray(depth)
-        metres = image.dtype != np.uint16
-        pixels = image.astype(np.float32) if metres else image
+        coefficients, pixels, scale = lens_and_depth(camera, depth)
         cleared = _CLEAR(
             self._key,
             self._x,
@@ -506,7 +500,7 @@ class ObstacleMemory:
             camera.cy,
             coefficients,
             pixels,
-            1.0 if metres else 1e-3,
+            scale,
             range_min,
             range_max,
             np.asarray(CLEAR_MARGIN),
@@ -514,6 +508,22 @@ class ObstacleMemory:
         )
         self.cleared += cleared
         return int(cleared)
+
+
+def lens_and_depth(
+    camera: CameraModel, depth: npt.NDArray[np.generic]
+) -> tuple[F64, npt.NDArray[Any], float]:
+    """A camera's eight distortion coefficients (zeros: none) and `depth` as the kernels
+    read it: contiguous, uint16 millimetres kept, anything else as float32 metres; and the
+    metres per unit."""
+    if camera.has_distortion:
+        coefficients = distortion_coefficients(camera.distortion_model, camera.distortion)
+    else:
+        coefficients = np.zeros(8)
+    image = np.ascontiguousarray(depth)
+    if image.dtype == np.uint16:
+        return coefficients, image, 1e-3
+    return coefficients, image.astype(np.float32), 1.0
 
 
 def profile_arrays(profile: GroundProfile | None) -> tuple[Any, ...]:

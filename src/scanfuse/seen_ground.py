@@ -19,8 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from scanfuse.compiled import compiled
-from scanfuse.distortion import distortion_coefficients
-from scanfuse.memory import ground_under, pixel_of, profile_arrays
+from scanfuse.memory import ground_under, lens_and_depth, pixel_of, profile_arrays
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -105,13 +104,7 @@ def on_seen_ground(
     out = np.zeros(len(points), dtype=np.bool_)
     if not len(points):
         return out
-    if camera.has_distortion:
-        coefficients = distortion_coefficients(camera.distortion_model, camera.distortion)
-    else:
-        coefficients = np.zeros(8)
-    image = np.ascontiguousarray(depth)
-    metres = image.dtype != np.uint16
-    pixels = image.astype(np.float32) if metres else image
+    coefficients, pixels, scale = lens_and_depth(camera, depth)
     _ON_GROUND(
         np.ascontiguousarray(points, dtype=np.float64),
         camera.fx,
@@ -120,7 +113,7 @@ def on_seen_ground(
         camera.cy,
         coefficients,
         pixels,
-        1.0 if metres else 1e-3,
+        scale,
         range_min,
         range_max,
         np.asarray(plane.normal, dtype=np.float64),
