@@ -16,9 +16,10 @@ import numpy as np
 from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.convert.ground import GroundPlane
+from scanfuse.memory import lens_and_depth, profile_arrays
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
-from scanfuse.seen_ground import on_seen_ground
+from scanfuse.seen_ground import SEEN_MARGIN, _on_ground_loop, on_seen_ground
 from scanfuse.stream import FusionStream
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
 from tests.support.render import Box, depth_image, tilted_room_ranges
@@ -133,3 +134,28 @@ def test_a_point_above_the_slab_s_bottom_or_hidden_behind_a_nearer_pixel_is_kept
         optical[:1], hidden, CAMERA, plane, None, below=0.03, range_min=0.1, range_max=4.0
     )
     assert found.tolist() == [False]
+
+
+def test_the_compiled_pass_matches_its_plain_loop_point_for_point():
+    # `docs/architecture.md`: every kernel has its plain Python beside it, the same arithmetic.
+    mounting = Transform.from_rpy(0.0, PITCH, 0.0, (0.0, 0.0, HEIGHT)) @ BODY_TO_OPTICAL
+    plane = GroundPlane.of_mounting(mounting)
+    depth = depth_image(CAMERA, mounting, [POST])
+    rng = np.random.default_rng(7)
+    base_points = np.column_stack(
+        [rng.uniform(0.3, 4.0, 500), rng.uniform(-2.0, 2.0, 500), rng.uniform(-0.2, 0.4, 500)]
+    )
+    optical = np.ascontiguousarray(mounting.inverse().apply(base_points))
+    compiled = on_seen_ground(
+        optical, depth, CAMERA, plane, None, below=0.03, range_min=0.1, range_max=3.0
+    )
+    coefficients, pixels, scale = lens_and_depth(CAMERA, depth)
+    plain = np.zeros(len(optical), dtype=np.bool_)
+    found = _on_ground_loop(
+        optical, CAMERA.fx, CAMERA.fy, CAMERA.cx, CAMERA.cy, coefficients, pixels, scale,
+        0.1, 3.0, np.asarray(plane.normal), plane.offset, 0.03, np.asarray(SEEN_MARGIN), plain,
+        *profile_arrays(None),
+    )  # fmt: skip
+    assert 20 <= found == int(plain.sum())  # some on the floor, not all
+    assert found < len(optical)
+    np.testing.assert_array_equal(compiled, plain)
