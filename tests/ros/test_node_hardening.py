@@ -67,7 +67,9 @@ def test_memory_sizes_the_grid_cannot_hold_are_refused_at_run_time(tmp_path, loo
     the node keeps fusing."""
     scene = Scene(duration=3.0)
     bag = write_scene_bag(tmp_path / 'in.mcap', scene)
-    loop = loop_factory(use_tf=False, memory_radius=10.0, **SCENE_PARAMS)
+    # Each scan waits for its frame (as its sibling tests): a loaded machine's late frame
+    # would otherwise pass a scan through with the LiDAR alone (the wall, not the box).
+    loop = loop_factory(use_tf=False, memory_radius=10.0, pair_wait=0.1, **SCENE_PARAMS)
     go = tmp_path / 'started'
     setters = {
         'radius': ('memory_radius', '20.0'),
