@@ -16,6 +16,7 @@ import pytest
 from scanfuse.camera import CameraModel
 from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.stream import FusionStream
+from scanfuse.transforms import Transform
 from tests.support.ground_scene import (
     BOX,
     BOX_FRONT,
@@ -35,7 +36,6 @@ from tests.support.render import box_depth, ground_depth, millimetres, slope_dep
 
 if TYPE_CHECKING:
     from scanfuse.scan import Scan
-    from scanfuse.transforms import Transform
 
 
 def depth_scans(depths: list[np.ndarray], **changes: object) -> tuple[Scan, FusionStream[int]]:
@@ -637,3 +637,66 @@ def test_a_ledge_past_a_platform_is_a_drop_at_its_edge():
     scan, _ = depth_scans([platform_depth(0.6, 0.0, ledge=0.4)] * 3)
     ahead = scan.ranges[READINGS // 2 - 2 : READINGS // 2 + 3]
     assert np.all(np.abs(ahead - 1.8) <= 0.08)
+
+
+RAMP_SLOPE = math.atan(1.0 / 8.0)
+
+
+def crest_depth(crest: float, edge: float, *, ledge: float = 0.0) -> np.ndarray:
+    """Seen from a robot standing on a 1:8 ramp (pitched nose up by its slope), in the base's
+    frame: the ramp's top `crest` metres ahead, a level platform to `edge`, then an equal ramp
+    down 1.2 m long to level floor; or with `ledge`, ground that many metres lower. Above the
+    base's plane the platform falls at the ramp's slope, the ramp down at twice it."""
+    platform, down = -math.tan(RAMP_SLOPE), -math.tan(2.0 * RAMP_SLOPE)
+    top = platform * (edge - crest)
+    pieces = [(-math.inf, crest, 0.0, 0.0), (crest, edge, 0.0, platform)]
+    if ledge:
+        pieces.append((edge, math.inf, top - ledge, platform))
+    else:
+        foot = edge + 1.2
+        pieces += [(edge, foot, top, down), (foot, math.inf, top + 1.2 * down, platform)]
+    return millimetres(ground_depth(CAMERA, optical_pose(), pieces))
+
+
+def crest_scan(depth: np.ndarray, *, imu: bool) -> Scan:
+    """The depth scan of three frames of `depth`, with the IMU's pitch (nose up by the ramp's
+    slope, REP-103: negative) or without an IMU."""
+    stream: FusionStream[int] = FusionStream(config())
+    stream.add_camera_info(CAMERA)
+    tilt = Transform.from_rpy(0.0, -RAMP_SLOPE, 0.0)
+    out = None
+    for index in range(3):
+        stamp = (index + 1) * NS // 10
+        if imu:
+            stream.add_imu(stamp, tilt.rotation, 'base_link')
+        stream.add_depth(stamp, depth, stamp)
+        (out,) = stream.add_scan(lidar_scan(stamp), index, stamp + 1)
+    assert out is not None
+    assert out.depth_scan is not None, out.passed
+    return out.depth_scan
+
+
+def false_share(scan: Scan) -> float:
+    """Share of the slots in view that hold anything (on these scenes all is floor)."""
+    in_view = ~np.isnan(scan.ranges)
+    return float((in_view & (scan.ranges < scan.range_max)).sum() / in_view.sum())
+
+
+# The ramp's top and the platform's end, metres ahead.
+CRESTS = {'top 0.6 m ahead': (0.6, 1.2), 'top 0.5 m ahead, platform 1 m': (0.5, 1.5)}
+
+
+@pytest.mark.parametrize(('crest', 'edge'), CRESTS.values(), ids=CRESTS.keys())
+def test_from_a_ramp_the_platform_and_the_ramp_down_past_its_top_are_floor_with_an_imu(crest, edge):
+    # Judged above the ramp the robot stands on, the ramp down falls at twice max_slope: a
+    # drop. Judged above level (the IMU's), it falls at max_slope: floor.
+    depth = crest_depth(crest, edge)
+    assert false_share(crest_scan(depth, imu=True)) <= 0.005
+    assert false_share(crest_scan(depth, imu=False)) > 0.1
+
+
+def test_from_a_ramp_a_ledge_past_the_platform_is_still_a_drop_with_an_imu():
+    scan = crest_scan(crest_depth(0.6, 1.2, ledge=0.4), imu=True)
+    ahead = scan.ranges[READINGS // 2 - 2 : READINGS // 2 + 3]
+    # The platform's edge, 1.2 m ahead along the base: the LiDAR's plane is the base's.
+    assert np.all(np.abs(ahead - 1.2) <= 0.08)

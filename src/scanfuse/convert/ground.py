@@ -361,9 +361,9 @@ class GroundProfile:
     bin_size: float
     # The lowest the ground may be where no column saw it (`ground_kernel.profile`): what
     # drops are measured below. None: `heights`. Beyond the last bin they fall on by
-    # `fall` metres per metre (the steepest floor's).
+    # `falls[column]` metres per metre (the steepest floor's; None: level).
     lows: F64 | None = None
-    fall: float = 0.0
+    falls: F64 | None = None
     # Depth noise (sigma = depth_noise Z^2) times `SLOPE_NOISE_SIGMAS`: how far a rising
     # ramp's noisy readings reach above it (`ground_kernel.slope_margin`); 0: no margin.
     noise_margin: float = 0.0
@@ -399,7 +399,8 @@ class GroundProfile:
         ground_kernel.crossings(
             x_n.ravel(), y_n.ravel(), x_n.shape[1], stride,
             np.array([*self.plane.normal, self.plane.offset]), forward, left, self.columns,
-            self.heights, self.heights if self.lows is None else self.lows, self.fall,
+            self.heights, self.heights if self.lows is None else self.lows,
+            np.zeros(1) if self.falls is None else self.falls,
             self.bin_size, far, np.array(levels, dtype=np.float64), len(levels) - lowest,
             self.noise_margin, np.zeros((0, 0)) if self.doubt is None else self.doubt, coarse,
         )  # fmt: skip
@@ -450,11 +451,13 @@ def ground_profile(
     sample: GroundSample,
     plane: GroundPlane,
     settings: GroundSettings,
+    level: GroundPlane | None = None,
 ) -> GroundProfile | None:
     """The ground of this frame where it leaves `plane` (ramps), or None where it does not
     (by more than `PROFILE_DEADBAND` and `PROFILE_EVIDENCE_SIGMAS` of a bin's noise, in
     `PROFILE_EVIDENCE` bins in a row, in any column);
-    `sample` is the camera's (`GroundSample.build`)."""
+    `sample` is the camera's (`GroundSample.build`). `level`: the level floor (an IMU's),
+    above which `max_slope` is the steepest floor; None: `plane` is taken as level."""
     if settings.max_slope <= 0.0:
         return None
     flat, scale = _kernel_depth(depth)
@@ -464,12 +467,17 @@ def ground_profile(
     lows = np.empty((columns.size, bins))
     evidence = np.empty(columns.size, dtype=np.int64)
     doubt = np.empty((columns.size, bins))
+    falls = np.empty(columns.size)
     forward, left = _plane_axes(plane)
+    # The plane's rise above level along its axes (sines): the up of the level floor.
+    up = np.zeros(3) if level is None else level.vector
+    tilt = np.array([forward @ up, left @ up])
     ground_kernel.profile(
         flat, scale, sample.width, columns, sample.profile_rows, sample.profile_x,
         sample.profile_y, np.array([*plane.normal, plane.offset]), forward, left,
-        math.tan(settings.max_slope), settings.depth_noise, PROFILE_BIN, PROFILE_DEADBAND,
-        PROFILE_EVIDENCE_SIGMAS, PROFILE_DOUBT_SIGMAS, heights, evidence, lows, doubt,
+        math.tan(settings.max_slope), tilt, settings.depth_noise, PROFILE_BIN,
+        PROFILE_DEADBAND, PROFILE_EVIDENCE_SIGMAS, PROFILE_DOUBT_SIGMAS, heights, evidence,
+        lows, doubt, falls,
     )  # fmt: skip
     if evidence.max(initial=0) < PROFILE_EVIDENCE:
         return None
@@ -479,7 +487,7 @@ def ground_profile(
         heights=heights,
         bin_size=PROFILE_BIN,
         lows=lows,
-        fall=math.tan(settings.max_slope),
+        falls=falls,
         noise_margin=SLOPE_NOISE_SIGMAS * settings.depth_noise,
         doubt=doubt,
     )
@@ -623,7 +631,9 @@ class GroundTracker:
                 lift = (1.0 - weight) * self._correction[1] + weight * lift
             self._correction = (turn, lift)
         self._estimate = prior if self._correction is None else _corrected(prior, *self._correction)
-        self.profile = ground_profile(depth, self._sample, self._estimate, self.settings)
+        # With an IMU the prior is the level floor: slopes are judged above it.
+        level = None if base is None else prior
+        self.profile = ground_profile(depth, self._sample, self._estimate, self.settings, level)
         return self._estimate
 
 

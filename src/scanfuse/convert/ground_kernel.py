@@ -49,6 +49,12 @@ FILL_COLUMNS = 2
 # profile at all, `ground.PROFILE_EVIDENCE`) before the bin of an obstacle's face goes on at
 # its last rise: with one, a flat floor's noise 2-3 m out lifted the ground under low boxes.
 RAMP_BINS = 3
+# The steepest floor, widened by the plane's tilt from level (`_profile`), at most this.
+MAX_WIDENED = math.radians(60.0)
+# How far off level the level may be (an IMU's through the mounting): a tilt is widened by
+# as much again, up to this. On a 1:8 ramp the ramp down beyond its top falls at exactly
+# the widened slope, and a profile that lags a few millimetres took it for a drop.
+LEVEL_DOUBT = math.radians(1.0)
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -362,11 +368,19 @@ refine = compiled(_refine)
 fit = compiled(_fit)
 
 
-def _candidate(rise: float, run: float, tan_slope: float, sigma: float) -> bool:
+def _candidate(rise: float, run: float, up: float, down: float, sigma: float) -> bool:
     """Whether a point `rise` metres above the last ground, `run` metres beyond it, may be
-    ground: within the steepest floor's rise plus 2 sigma of its noise either way (a low
-    box's top, a little past its face, is not)."""
-    return abs(rise) <= tan_slope * max(run, 0.0) + ABOVE + 2.0 * sigma
+    ground: within the steepest floor's rise (`up` per metre) or fall (`down`) plus 2 sigma
+    of its noise (a low box's top, a little past its face, is not)."""
+    margin = ABOVE + 2.0 * sigma
+    run = max(run, 0.0)
+    return -down * run - margin <= rise <= up * run + margin
+
+
+def _widening(tilt: float) -> float:
+    """Radians the steepest floor is widened by where the plane rises `tilt` radians above
+    level along a column (none where it falls: the other way is widened)."""
+    return max(tilt, 0.0) + min(max(tilt, 0.0), LEVEL_DOUBT)
 
 
 def _profile(
@@ -381,6 +395,7 @@ def _profile(
     forward: Any,
     left: Any,
     tan_slope: float,
+    level: Any,
     noise: float,
     bin_size: float,
     deadband: float,
@@ -390,6 +405,7 @@ def _profile(
     evidence: Any,
     low: Any,
     doubt: Any,
+    falls: Any,
 ) -> None:
     """Per sampled image column the ground's height above `plane` (normal, offset) in bins
     of `bin_size` metres of horizontal distance from the camera (`profile`, columns x bins).
@@ -398,18 +414,26 @@ def _profile(
     at j * columns.size + c. Each column's pixels (`rows`, nearest first) become points; the bins
     are walked outwards from the camera's foot, where the ground is the plane (height 0). A
     bin's ground is the mean height of its points that may be ground (`_candidate`: within
-    tan_slope * run and their noise of the last ground, run their horizontal distance from it),
-    clamped to tan_slope * min(run, bin_size): the profile never rises or falls faster than the
-    steepest floor, however the points creep (an obstacle's face, a step, a drop are not
-    ground). In a bin where many points stand clearly above any floor's rise (an obstacle's
-    face) it does not rise to the face's foot: it goes on at its last rise where the column's
-    ground already stood off the plane for RAMP_BINS bins (a ramp's, under a box on it), else
-    it is held; it does not fall in one where many stand below (a drop's edge). A bin without
-    ground keeps the last ground; if it holds an obstacle's or a drop's points, the last
-    ground's place moves on to it (the ground is held level under an obstacle and across a
-    drop: neither a box's top nor a drop's far floor becomes ground by distance alone). At the
-    end, a bin without ground takes the ground of the nearest column within FILL_COLUMNS that
-    saw it there.
+    the steepest floor's rise or fall over run and their noise of the last ground, run their
+    horizontal distance from it), clamped to that over min(run, bin_size): the profile never
+    rises or falls faster than the steepest floor, however the points creep (an obstacle's
+    face, a step, a drop are not ground). In a bin where many points stand clearly above any
+    floor's rise (an obstacle's face) it does not rise to the face's foot: it goes on at its
+    last rise where the column's ground already stood off the plane for RAMP_BINS bins (a
+    ramp's, under a box on it), else it is held; it does not fall in one where many stand
+    below (a drop's edge). A bin without ground keeps the last ground; if it holds an
+    obstacle's or a drop's points, the last ground's place moves on to it (the ground is held
+    level under an obstacle and across a drop: neither a box's top nor a drop's far floor
+    becomes ground by distance alone). At the end, a bin without ground takes the ground of
+    the nearest column within FILL_COLUMNS that saw it there.
+
+    The steepest floor is `tan_slope` per metre above level. `level` (the sines of the
+    plane's rise along `forward` and `left` above level; zeros: the plane is taken as level)
+    widens it per column where the plane is tilted (the robot stands on a ramp): from a
+    ramp's foot, the level floor beyond its top falls away from the plane at the ramp's
+    slope, and a down ramp beyond it at twice that (`_widening`: the tilt, and as much again
+    up to LEVEL_DOUBT). Only widened, never narrowed: the level (an IMU's, through the
+    mounting) may be a mounting error off. `falls[c]` is column c's steepest fall per metre.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
     the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
@@ -431,6 +455,7 @@ def _profile(
     allowed = np.empty((columns_used, count))
     slot = np.full((columns_used, count), -1, np.int64)
     seen = np.zeros((columns_used, bins), np.bool_)
+    heading = np.zeros((columns_used, 2))  # each column's direction on the plane, summed
     for j in range(count):
         for c in range(columns_used):
             column = columns[c]
@@ -452,11 +477,23 @@ def _profile(
                 continue
             vertical = abs(plane[0] * x_n[ray] + plane[1] * y_n[ray] + plane[2])
             radius[c, j], height[c, j] = r, h
+            if r > 0.0:
+                heading[c, 0] += along / r
+                heading[c, 1] += across / r
             slot[c, j] = min(int(r / bin_size), bins - 1)
             allowed[c, j] = noise * z * z * vertical  # 1 sigma of the point's height
     order = np.empty(count, np.int64)
     starts = np.zeros(bins + 1, np.int64)
+    steepest = math.atan(tan_slope)
     for c in range(columns_used):
+        # The plane's tilt above level along this column (positive: it rises away).
+        norm = math.hypot(heading[c, 0], heading[c, 1])
+        sine = (heading[c, 0] * level[0] + heading[c, 1] * level[1]) / norm if norm > 0.0 else 0.0
+        tilt = math.asin(min(max(sine, -1.0), 1.0))
+        up = math.tan(min(steepest + widening(-tilt), MAX_WIDENED))
+        down = math.tan(min(steepest + widening(tilt), MAX_WIDENED))
+        if c < falls.size:
+            falls[c] = down
         starts[:] = 0
         for j in range(count):
             if slot[c, j] >= 0:
@@ -479,20 +516,20 @@ def _profile(
                 j = order[k]
                 run = radius[c, j] - at
                 rise = height[c, j] - ground
-                clear = tan_slope * max(run, 0.0) + FACE + 3.0 * allowed[c, j]
-                if candidate(rise, run, tan_slope, allowed[c, j]):
+                clear = FACE + 3.0 * allowed[c, j]
+                if candidate(rise, run, up, down, allowed[c, j]):
                     total += height[c, j]
                     spread += allowed[c, j] * allowed[c, j]
                     found += 1
-                elif rise > clear:
+                elif rise > up * max(run, 0.0) + clear:
                     above += 1
-                elif rise < -clear:
+                elif rise < -down * max(run, 0.0) - clear:
                     below += 1
             if found > 0:
                 # At most one bin's rise or fall per bin of ground seen: across a gap (no
                 # points) the ground does not jump to stray points far beyond it.
-                reach = tan_slope * min(max(centre - at, 0.0), bin_size)
-                top = ground + reach
+                step = min(max(centre - at, 0.0), bin_size)
+                top = ground + up * step
                 if above >= max(2, found // 4):
                     # An obstacle's face stands in this bin: the ground does not rise to the
                     # face's foot. On a ramp already seen off the plane (beyond its noise,
@@ -500,10 +537,14 @@ def _profile(
                     # stands on the ramp); elsewhere it is held.
                     top = ground
                     if streak >= RAMP_BINS:
-                        top += min(max(trend, 0.0) * max(centre - at, 0.0), reach)
+                        top += min(max(trend, 0.0) * max(centre - at, 0.0), up * step)
                 # A drop's edge (many points below) stands in this bin: the ground does not
                 # fall into it.
-                bottom = ground if below >= max(2, found // 4) else ground - reach
+                bottom = ground if below >= max(2, found // 4) else ground - down * step
+                if bottom < ground and streak >= RAMP_BINS and trend < 0.0:
+                    # Across bins no row of the image fell in (a ramp down seen at a grazing
+                    # angle), a ramp already seen falling goes on at its last fall.
+                    bottom += max(trend, -down) * max(centre - at - bin_size, 0.0)
                 last = ground
                 ground = min(max(total / found, bottom), top)
                 if centre > at:
@@ -543,7 +584,7 @@ def _profile(
                     doubt[c, b] = doubt[c + step, b]
                     known[c, b] = True
                     break
-    for c in range(min(columns_used, low.shape[0])):
+    for c in range(min(columns_used, low.shape[0], falls.size)):
         last, last_at = 0.0, 0.0
         for b in range(min(bins, low.shape[1])):
             centre = (b + 0.5) * bin_size
@@ -551,7 +592,7 @@ def _profile(
                 last, last_at = profile[c, b], centre
                 low[c, b] = last
             else:
-                low[c, b] = min(profile[c, b], last - tan_slope * (centre - last_at))
+                low[c, b] = min(profile[c, b], last - falls[c] * (centre - last_at))
 
 
 def _crossings(
@@ -565,7 +606,7 @@ def _crossings(
     columns: Any,
     profile: Any,
     low: Any,
-    fall: float,
+    falls: Any,
     bin_size: float,
     far: float,
     levels: Any,
@@ -579,7 +620,7 @@ def _crossings(
     between bin centres, level beyond the ends): lifts[level, ray]. The rays are those of
     every `stride`-th pixel of every `stride`-th row (`width` of them a row). The levels
     from index `low_from` on are measured above the lowest ground, `low` (drops: see
-    `_profile`), which beyond the last bin falls on by `fall` metres per metre.
+    `_profile`), which beyond the last bin falls on by `falls[column]` metres per metre.
 
     The line of sight's height above the ground falls along it (it looks down more steeply
     than any floor slopes), so the first knot below L brackets the point. A line of sight
@@ -617,7 +658,7 @@ def _crossings(
             knot, before = min(b, bins - 1), max(min(b - 1, bins - 1), 0)
             g, g_low = profile[c, knot], low[c, knot]
             if b == bins:
-                g_low -= fall * max(z * run - (bins - 0.5) * bin_size, 0.0)
+                g_low -= falls[min(c, falls.size - 1)] * max(z * run - (bins - 0.5) * bin_size, 0.0)
             gap = down * z + plane[3] - g  # the line of sight's height above the ground
             low_gap = down * z + plane[3] - g_low
             while pending < count:
@@ -673,5 +714,6 @@ def _slope_margin(sigma: float, rise: float, down: float) -> float:
 
 slope_margin = compiled(_slope_margin)
 candidate = compiled(_candidate)
+widening = compiled(_widening)
 profile = compiled(_profile, error_model='numpy')
 crossings = compiled(_crossings, error_model='numpy')
