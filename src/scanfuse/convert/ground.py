@@ -32,7 +32,8 @@ the camera's optical frame, with the mounting's plane as the prior:
   (`FALLBACK_FADE` a frame), not held for good;
 - the estimate's offset from the prior is smoothed over frames (`smoothing`: the weight of
   the new frame), so a prior that moves (an IMU's tilt) carries the learnt error along;
-- ground that leaves the plane ahead within `max_slope` (a ramp) is the profile's
+- ground that leaves the plane ahead within `max_slope` (a ramp; with an IMU, `max_slope`
+  above level: from a ramp, the ramp down past its top) is the profile's
   (`ground_profile`, `ground_kernel.profile`): per image column, walked outwards; with it
   the lowest the ground may be where a column saw none (behind a crest: falling at
   `max_slope` from the last ground seen), which drops are measured below.

@@ -51,10 +51,6 @@ FILL_COLUMNS = 2
 RAMP_BINS = 3
 # The steepest floor, widened by the plane's tilt from level (`_profile`), at most this.
 MAX_WIDENED = math.radians(60.0)
-# How far off level the level may be (an IMU's through the mounting): a tilt is widened by
-# as much again, up to this. On a 1:8 ramp the ramp down beyond its top falls at exactly
-# the widened slope, and a profile that lags a few millimetres took it for a drop.
-LEVEL_DOUBT = math.radians(1.0)
 
 
 def _axes(normal: Any) -> tuple[Any, Any]:
@@ -377,12 +373,6 @@ def _candidate(rise: float, run: float, up: float, down: float, sigma: float) ->
     return -down * run - margin <= rise <= up * run + margin
 
 
-def _widening(tilt: float) -> float:
-    """Radians the steepest floor is widened by where the plane rises `tilt` radians above
-    level along a column (none where it falls: the other way is widened)."""
-    return max(tilt, 0.0) + min(max(tilt, 0.0), LEVEL_DOUBT)
-
-
 def _profile(
     depth: Any,
     scale: float,
@@ -431,9 +421,9 @@ def _profile(
     plane's rise along `forward` and `left` above level; zeros: the plane is taken as level)
     widens it per column where the plane is tilted (the robot stands on a ramp): from a
     ramp's foot, the level floor beyond its top falls away from the plane at the ramp's
-    slope, and a down ramp beyond it at twice that (`_widening`: the tilt, and as much again
-    up to LEVEL_DOUBT). Only widened, never narrowed: the level (an IMU's, through the
-    mounting) may be a mounting error off. `falls[c]` is column c's steepest fall per metre.
+    slope, and a down ramp beyond it at twice that. Only widened, never narrowed: the level
+    (an IMU's, through the mounting) may be a mounting error off. `falls[c]` is column c's
+    steepest fall per metre.
 
     `evidence[c]`: the most bins in a row of column c whose ground was seen (not held) off
     the plane by more than `deadband` and than `evidence_sigmas` sigmas of its points' mean.
@@ -490,8 +480,8 @@ def _profile(
         norm = math.hypot(heading[c, 0], heading[c, 1])
         sine = (heading[c, 0] * level[0] + heading[c, 1] * level[1]) / norm if norm > 0.0 else 0.0
         tilt = math.asin(min(max(sine, -1.0), 1.0))
-        up = math.tan(min(steepest + widening(-tilt), MAX_WIDENED))
-        down = math.tan(min(steepest + widening(tilt), MAX_WIDENED))
+        up = math.tan(min(steepest + max(-tilt, 0.0), MAX_WIDENED))
+        down = math.tan(min(steepest + max(tilt, 0.0), MAX_WIDENED))
         if c < falls.size:
             falls[c] = down
         starts[:] = 0
@@ -714,6 +704,5 @@ def _slope_margin(sigma: float, rise: float, down: float) -> float:
 
 slope_margin = compiled(_slope_margin)
 candidate = compiled(_candidate)
-widening = compiled(_widening)
 profile = compiled(_profile, error_model='numpy')
 crossings = compiled(_crossings, error_model='numpy')
