@@ -116,13 +116,30 @@ def test_deskew_by_whole_slots_shifts_the_readings():
     np.testing.assert_allclose(out.ranges, np.roll(ranges, 2), rtol=1e-6)
 
 
-def test_a_stretched_sweep_fills_the_gap_with_the_nearer_neighbour():
-    # Beams 4..7 turned one slot on: slot 4 gets no beam and takes min(beam 3, beam 4).
-    ranges = np.array([1, 1, 1, 6, 5, 5, 5, 5], dtype=np.float32)
-    turn = np.where(np.arange(8) >= 4, 2 * math.pi / 8, 0.0)
-    out = deskew_scan(scan_of(ranges), turn, np.zeros(8), np.zeros(8))
-    assert out.ranges[4] == pytest.approx(5.0)
-    assert out.ranges[5] == pytest.approx(5.0)
+SLOT = 2 * math.pi / 1080  # an RPLIDAR A2's third of a degree
+
+
+def test_a_stretched_sweep_fills_a_gap_on_one_surface_with_the_nearer_neighbour():
+    # A wall 2 m away; beams 540 on turned one slot on: slot 540 gets no beam and takes the
+    # nearer of beams 539 and 540, 1 mm apart.
+    ranges = np.full(1080, 2.0, dtype=np.float32)
+    ranges[540:] = 2.001
+    turn = np.where(np.arange(1080) >= 540, SLOT, 0.0)
+    out = deskew_scan(scan_of(ranges), turn, np.zeros(1080), np.zeros(1080))
+    assert out.ranges[540] == pytest.approx(2.0)
+    assert out.ranges[541] == pytest.approx(2.001)
+
+
+def test_a_gap_across_a_depth_edge_stays_without_a_reading():
+    # A post 0.6 m away (beams up to 539) before a wall 1.3 m away: the post's beams moved
+    # four slots more than the wall's (driving past it), so slots 536-539 were measured by no
+    # beam. Filled with the post, they made it four slots (1.7 cm) wider than it is.
+    ranges = np.where(np.arange(1080) < 540, 0.6, 1.3).astype(np.float32)
+    turn = np.where(np.arange(1080) < 540, -4 * SLOT, 0.0)
+    out = deskew_scan(scan_of(ranges), turn, np.zeros(1080), np.zeros(1080))
+    assert np.isnan(out.ranges[536:540]).all()
+    np.testing.assert_allclose(out.ranges[530:536], 0.6, rtol=1e-6)
+    np.testing.assert_allclose(out.ranges[540:546], 1.3, rtol=1e-6)
 
 
 def test_the_same_stamp_twice_is_one_sample_not_out_of_order():
