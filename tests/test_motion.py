@@ -133,7 +133,7 @@ def test_a_stretched_sweep_fills_a_gap_on_one_surface_with_the_nearer_neighbour(
 def test_a_gap_across_a_depth_edge_stays_without_a_reading():
     # A post 0.6 m away (beams up to 539) before a wall 1.3 m away: the post's beams moved
     # four slots more than the wall's (driving past it), so slots 536-539 were measured by no
-    # beam. Filled with the post, they made it four slots (1.7 cm) wider than it is.
+    # beam. Filled with the post, they made it four slots (1.4 cm) wider than it is.
     ranges = np.where(np.arange(1080) < 540, 0.6, 1.3).astype(np.float32)
     turn = np.where(np.arange(1080) < 540, -4 * SLOT, 0.0)
     out = deskew_scan(scan_of(ranges), turn, np.zeros(1080), np.zeros(1080))

@@ -6,15 +6,15 @@ different poses: at 1.5 rad/s the last beam of a 0.1 s sweep is 8.6 degrees off.
 beam's point is moved by its own `PlanarMotion` (from the sensor at its time to the sensor
 at the stamp) and the scan is laid out again on its own grid.
 
-Laying out again: beam i lands at the continuous slot position u_i of its moved bearing.
-A slot gets the nearest (REP-117 order, NaN never hiding a reading: `np.fmin`) of the
-beams landing in it; a slot no beam lands in (the sweep stretched) gets the nearer of the
-two beams either side of it where both lie on one surface (`_one_surface`), never an
-interpolation. Across a depth edge it stays NaN (no reading): driving past a post 0.6 m to
-the side, the post's beams move 2-3 degrees more than the wall's behind it, and the slots
-between them were measured by no beam (the wall there was hidden when the beams were
-taken; the post's edge is where its own beams landed). Beams without a point (+-Inf, NaN)
-keep their value and only turn with the motion.
+Laying out again: beam i lands at the continuous slot position u_i of its moved bearing. A
+slot gets the nearest (REP-117 order, NaN never hiding a reading: `np.fmin`) of the beams
+landing in it; a slot no beam lands in (the sweep stretched) gets the nearer of the two
+beams either side of it where both lie on one surface (`_one_surface`), never an
+interpolation. Across a depth edge it stays NaN (no reading): at 0.35 m/s, 75 ms into a
+sweep, the beams of a post 0.6 m to the side move 2.5 degrees and those of a wall 1.3 m away
+1.2, and the slots between them were measured by no beam (the wall there was hidden when the
+beams were taken; the post's edge is where its own beams landed). Beams without a point
+(+-Inf, NaN) keep their value and only turn with the motion.
 """
 
 from __future__ import annotations
