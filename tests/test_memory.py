@@ -139,6 +139,27 @@ def test_a_box_stays_behind_the_robot_after_a_half_turn_and_the_lidar_never_clea
     assert np.isfinite(behind.memory_scan.ranges).any()
 
 
+def test_a_remembered_box_is_drawn_from_where_the_lidar_stands_on_a_body_pitched_up_a_ramp():
+    # Seen level, the box is remembered 1.5 m ahead; the robot turns its back to it. Then
+    # the base pitches nose up 7.1 degrees (a 1:8 ramp, as the IMU says): the LiDAR, 0.3 m
+    # up the body, leans back 0.3 sin(7.1 deg) = 3.7 cm towards the box, which lies that
+    # much nearer to it.
+    stream = FusionStream(config())
+    robot = Robot(stream, [BOX])
+    robot.scan()
+    robot.move_to(PlanarPose(0.0, 0.0, math.pi), 2.0)
+    for _ in range(2):  # level, looking away
+        level = robot.scan()
+    assert reading_at(level.fused, math.pi)[0] == pytest.approx(box_front_range(), abs=0.005)
+    slope = math.atan(1 / 8)
+    for _ in range(2):
+        stream.add_imu(robot.now + NS // 50, Transform.from_rpy(0.0, -slope, 0.0).rotation,
+                       'base_link')  # fmt: skip
+        pitched = robot.scan(camera=False)
+    value = reading_at(pitched.fused, math.pi)[0]
+    assert value == pytest.approx(box_front_range() - 0.3 * math.sin(slope), abs=0.005)
+
+
 class LedgeRobot(Robot):
     """The floor ends 1.2 m ahead of the start: beyond it lies 0.4 m lower (a loading dock)."""
 

@@ -273,6 +273,26 @@ def test_a_scan_adds_its_kept_in_range_readings_at_their_place_in_odom():
     np.testing.assert_allclose(y[order], [2.0, 3.0], atol=1e-9)
 
 
+def test_a_sensor_on_a_tilted_base_stands_where_the_tilt_carries_its_origin():
+    # A LiDAR 0.1 m ahead of the base's origin and 0.3 m above it; the base at (1, 2)
+    # facing +y. Pitched nose up 7.1 degrees (a 1:8 ramp), the LiDAR stands 0.1 cos - 0.3 sin
+    # ahead of the base's origin (3.8 cm short of 0.1 m); rolled 5 degrees onto its right
+    # side, 0.3 sin(5 deg) to the right (+x here). Its axes stay the level mounting's.
+    mounting = Transform.from_rpy(0.0, 0.0, 0.0, (0.1, 0.0, 0.3))
+    base = PlanarPose(1.0, 2.0, math.pi / 2)
+    level = Placement.of(base, mounting)
+    slope, roll = math.atan(1 / 8), math.radians(5.0)
+    pitched = Placement.of(base, mounting, Transform.from_rpy(0.0, -slope, 0.0))
+    rolled = Placement.of(base, mounting, Transform.from_rpy(roll, 0.0, 0.0))
+    assert (level.x, level.y) == pytest.approx((1.0, 2.1), abs=1e-12)
+    ahead = 0.1 * math.cos(slope) - 0.3 * math.sin(slope)
+    assert (pitched.x, pitched.y) == pytest.approx((1.0, 2.0 + ahead), abs=1e-12)
+    assert (rolled.x, rolled.y) == pytest.approx((1.0 + 0.3 * math.sin(roll), 2.1), abs=1e-12)
+    for tilted in (pitched, rolled):
+        axes = (tilted.xx, tilted.xy, tilted.yx, tilted.yy)
+        assert axes == pytest.approx((level.xx, level.xy, level.yx, level.yy), abs=1e-12)
+
+
 def test_a_scan_seen_from_a_nan_placement_adds_nothing():
     memory = ObstacleMemory()
     scan = Scan(-math.pi, math.pi / 2, math.pi / 2, 0.1, 10.0, np.ones(4, np.float32))

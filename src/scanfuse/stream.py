@@ -1341,7 +1341,13 @@ class FusionStream(Generic[T]):
             for camera in paired:
                 keep &= ~self._unbacked(camera, output.depth_scan, placement)
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, keep, robot=robot)
-        ranges = memory.scan(placement, scan.grid, robot=robot, now_ns=scan.stamp_ns)
+        # Readings are added from the level placement: a camera's reading lies in the
+        # tilted body's plane, and setting it down level turns it about the base's origin,
+        # which is exact at the ground's height, where low obstacles stand. They are drawn
+        # from where the LiDAR stands on the tilted body (the IMU's), as its own readings
+        # are: drawn level, a box beside a robot pitched up a 1:8 ramp lay 3.7 cm off.
+        drawn_from = Placement.of(pose, base_to_output, self.imu.tilt_at(scan.stamp_ns))
+        ranges = memory.scan(drawn_from, scan.grid, robot=robot, now_ns=scan.stamp_ns)
         # REP-117: a published finite reading lies inside its limits. A remembered point
         # nearer than range_min (the robot pushed into it) is no reading of this scan, as
         # the merge already treats it.
