@@ -219,6 +219,18 @@ class FusionConfig(BaseModel):
             'terrain trials collided (docs/simulation.md)'
         ),
     )
+    far_confirm_range: float = Field(
+        2.0,
+        ge=0.0,
+        le=100.0,
+        allow_inf_nan=False,
+        description=(
+            "obstacle method, with odometry: a camera's slab reading farther than this, metres, "
+            'is kept only when its previous frame had one within 5 cm plus one sigma of '
+            'depth_noise of its place (far floor noise differs frame to frame, an obstacle '
+            'stays); nearer ones at once; 0: every reading at once'
+        ),
+    )
     ground_estimate: bool = Field(
         default=True,
         description=(

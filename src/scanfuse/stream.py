@@ -59,6 +59,7 @@ from scanfuse.config import Method
 from scanfuse.convert.cloud import lidar_points, lidar_readings
 from scanfuse.convert.ground import GroundPlane, GroundProfile
 from scanfuse.errors import InputError, ScanfuseError, TransformError
+from scanfuse.far_confirm import confirmed, far_readings, places
 from scanfuse.feeds import CameraFeed, DepthFrame, Sources
 from scanfuse.fragments import FragmentAssembler
 from scanfuse.frames import StampedTransform, TransformStore, frame_name
@@ -965,10 +966,41 @@ class FusionStream(Generic[T]):
         except ScanfuseError as err:
             self.note_malformed('fusion', err)
             return _Seen(feed, Passed.FUSION_FAILED, frame)
+        depth_scan = result.depth_scan
+        if result.slab_slots is not None:
+            depth_scan = self._far_confirmed(feed, frame, depth_scan, result.slab_slots, paired)
         return _Seen(
-            feed, None, frame, result.depth_scan, extrinsics, compensation, result.timings,
+            feed, None, frame, depth_scan, extrinsics, compensation, result.timings,
             result.slab_slots, mount,
         )  # fmt: skip
+
+    def _far_confirmed(
+        self,
+        feed: CameraFeed,
+        frame: DepthFrame,
+        scan: Scan,
+        slab_slots: Mask,
+        extrinsics: Extrinsics,
+    ) -> Scan:
+        """`scan` (the camera's readings of `frame`, at the output's stamp) without its slab
+        readings beyond `far_confirm_range` that the camera's previous frame did not show
+        (`far_confirm`). Without odometry at the stamp, `scan` as it is."""
+        far = feed.config.far_confirm_range
+        at = self.odometry.pose_at(scan.stamp_ns) if far > 0.0 else None
+        if at is None or at.pose is None:
+            return scan
+        slots = far_readings(scan, slab_slots, far)
+        points = places(scan, slots, Placement.of(at.pose, extrinsics.base_to_laser))
+        if frame.stamp_ns != feed.far_frame:
+            feed.far_frame, feed.far_before = frame.stamp_ns, feed.far_now
+        feed.far_now = points
+        ranges = scan.ranges[slots].astype(np.float64)
+        kept = confirmed(points, ranges, feed.far_before, feed.config.depth_noise)
+        if kept.all():
+            return scan
+        filtered = scan.ranges.copy()
+        filtered[np.flatnonzero(slots)[~kept]] = np.nan
+        return scan.with_ranges(filtered)
 
     def _camera_mount(
         self, feed: CameraFeed, frame: DepthFrame, lidar_frame: str | None

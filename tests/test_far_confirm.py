@@ -1,0 +1,60 @@
+"""Far camera readings kept once a second frame shows them (`scanfuse.far_confirm`).
+
+Worked by hand: at 2.5 m the tolerance is 5 cm plus one sigma of a D435's depth noise,
+0.01 * 2.5^2 = 6.25 cm, so 11.25 cm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanfuse.far_confirm import confirmed
+from scanfuse.stream import FusionStream
+from tests.support.render import Box
+from tests.test_memory import Robot, config, reading_at
+
+FAR_BOX = Box(2.5, 2.7, -0.1, 0.1, 0.2)  # straight ahead, beyond the default 2 m
+NEAR_BOX = Box(1.5, 1.7, 0.5, 0.7, 0.2)  # ahead and to the left, within it
+NEAR_BEARING = math.atan2(0.6, 1.5)
+
+
+def test_a_far_reading_needs_the_frame_before_within_5_cm_and_a_sigma():
+    points = np.array([[2.5, 0.0], [2.5, 1.0]])
+    ranges = np.array([2.5, math.hypot(2.5, 1.0)])
+    before = np.array([[2.5 + 0.11, 0.0], [2.5, 1.0 + 0.13]])
+    # 11 cm off at 2.5 m: within 11.25 cm; 13 cm off at 2.69 m: beyond 5 + 7.25 cm.
+    assert confirmed(points, ranges, before, 0.01).tolist() == [True, False]
+    assert confirmed(points, ranges, before, 0.0).tolist() == [False, False]
+    assert confirmed(points, ranges, np.zeros((0, 2)), 0.01).tolist() == [False, False]
+
+
+def test_a_far_box_is_reported_from_its_second_frame_a_near_one_from_its_first():
+    robot = Robot(FusionStream(config()), [FAR_BOX, NEAR_BOX])
+    first = robot.scan().depth_scan
+    assert np.isnan(first.ranges[first.grid.slot_of(np.array([0.0]))[0]])
+    assert reading_at(first, NEAR_BEARING)[0] == pytest.approx(
+        1.5 / math.cos(NEAR_BEARING), abs=0.03
+    )
+    second = robot.scan().depth_scan
+    assert reading_at(second, 0.0)[0] == pytest.approx(FAR_BOX.x_min, abs=0.03)
+
+
+def test_with_far_confirm_range_0_a_far_box_is_reported_from_its_first_frame():
+    robot = Robot(FusionStream(config(far_confirm_range=0.0)), [FAR_BOX])
+    first = robot.scan().depth_scan
+    assert reading_at(first, 0.0)[0] == pytest.approx(FAR_BOX.x_min, abs=0.03)
+
+
+def test_a_far_reading_the_frame_before_did_not_show_is_dropped():
+    # The box appears in the second frame (a far speck of noise does the same): not yet
+    # shown; in the third, where the second showed it, it is.
+    robot = Robot(FusionStream(config()), [])
+    robot.scan()
+    robot.world = [FAR_BOX]
+    second = robot.scan().depth_scan
+    assert np.isnan(second.ranges[second.grid.slot_of(np.array([0.0]))[0]])
+    third = robot.scan().depth_scan
+    assert reading_at(third, 0.0)[0] == pytest.approx(FAR_BOX.x_min, abs=0.03)
