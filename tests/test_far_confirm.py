@@ -26,9 +26,9 @@ def test_a_far_reading_needs_the_frame_before_within_5_cm_and_a_sigma():
     ranges = np.array([2.5, math.hypot(2.5, 1.0)])
     before = np.array([[2.5 + 0.11, 0.0], [2.5, 1.0 + 0.13]])
     # 11 cm off at 2.5 m: within 11.25 cm; 13 cm off at 2.69 m: beyond 5 + 7.25 cm.
-    assert confirmed(points, ranges, before, 0.01).tolist() == [True, False]
-    assert confirmed(points, ranges, before, 0.0).tolist() == [False, False]
-    assert confirmed(points, ranges, np.zeros((0, 2)), 0.01).tolist() == [False, False]
+    assert confirmed(points, ranges, before, 0.01, (0.0, 0.0)).tolist() == [True, False]
+    assert confirmed(points, ranges, before, 0.0, (0.0, 0.0)).tolist() == [False, False]
+    assert confirmed(points, ranges, np.zeros((0, 2)), 0.01, (0.0, 0.0)).tolist() == [False, False]
 
 
 def test_a_far_box_is_reported_from_its_second_frame_a_near_one_from_its_first():
@@ -58,3 +58,22 @@ def test_a_far_reading_the_frame_before_did_not_show_is_dropped():
     assert np.isnan(second.ranges[second.grid.slot_of(np.array([0.0]))[0]])
     third = robot.scan().depth_scan
     assert reading_at(third, 0.0)[0] == pytest.approx(FAR_BOX.x_min, abs=0.03)
+
+
+def test_the_bearing_windows_find_what_measuring_every_pair_finds():
+    # Points all around (windows across +-pi too), each frame's a few cm from the last.
+    rng = np.random.default_rng(7)
+    origin = (0.3, -0.2)
+    for _ in range(20):
+        count = int(rng.integers(1, 300))
+        bearings = rng.uniform(-math.pi, math.pi, count)
+        ranges = rng.uniform(2.0, 3.0, count)
+        points = np.column_stack(
+            [origin[0] + ranges * np.cos(bearings), origin[1] + ranges * np.sin(bearings)]
+        )
+        before = points[rng.permutation(count)[: count // 2]] + rng.normal(0, 0.08, (count // 2, 2))
+        gaps = np.hypot(
+            points[:, 0, None] - before[None, :, 0], points[:, 1, None] - before[None, :, 1]
+        )
+        every_pair = (gaps <= 0.05 + 0.01 * ranges[:, None] ** 2).any(axis=1)
+        np.testing.assert_array_equal(confirmed(points, ranges, before, 0.01, origin), every_pair)

@@ -45,13 +45,34 @@ def places(scan: Scan, slots: Mask, placement: Placement) -> F64:
     return np.column_stack([x, y])
 
 
-def confirmed(points: F64, ranges: F64, before: F64, depth_noise: float) -> Mask:
-    """Per point (readings `ranges` metres away), whether a point of `before` lies within
-    FAR_CONFIRM_ABSOLUTE + depth_noise * range^2 of it."""
+def confirmed(
+    points: F64, ranges: F64, before: F64, depth_noise: float, origin: tuple[float, float]
+) -> Mask:
+    """Per point (readings `ranges` metres from `origin`), whether a point of `before` lies
+    within FAR_CONFIRM_ABSOLUTE + depth_noise * range^2 of it.
+
+    Only the points of `before` whose bearing from `origin` lies within the angle that
+    circle subtends are measured (sorted by bearing): a wall 2-3 m out fills a frame's every
+    slot, and measuring every pair took a millisecond."""
+    near = np.zeros(len(points), dtype=np.bool_)
     if len(points) == 0 or len(before) == 0:
-        return np.zeros(len(points), dtype=np.bool_)
-    gaps = np.hypot(
-        points[:, 0, None] - before[None, :, 0], points[:, 1, None] - before[None, :, 1]
-    ).min(axis=1)
-    near: Mask = gaps <= FAR_CONFIRM_ABSOLUTE + depth_noise * ranges * ranges
-    return near
+        return near
+    tolerance = FAR_CONFIRM_ABSOLUTE + depth_noise * ranges * ranges
+    bearing = np.arctan2(points[:, 1] - origin[1], points[:, 0] - origin[0])
+    width = np.arcsin(np.minimum(tolerance / np.maximum(ranges, 1e-9), 1.0))
+    seen = np.arctan2(before[:, 1] - origin[1], before[:, 0] - origin[0])
+    order = np.argsort(seen)
+    # Once more a turn below and above, so that a window across +-pi finds its points.
+    bearings = np.concatenate([seen[order] - 2.0 * np.pi, seen[order], seen[order] + 2.0 * np.pi])
+    around = np.concatenate([before[order]] * 3)
+    first = np.searchsorted(bearings, bearing - width, side='left')
+    last = np.searchsorted(bearings, bearing + width, side='right')
+    most = int((last - first).max())
+    if most <= 0:
+        return near
+    index = first[:, None] + np.arange(most)
+    inside = index < last[:, None]
+    index = np.minimum(index, len(bearings) - 1)
+    gaps = np.hypot(points[:, 0, None] - around[index, 0], points[:, 1, None] - around[index, 1])
+    found: Mask = np.any(inside & (gaps <= tolerance[:, None]), axis=1)
+    return found

@@ -990,12 +990,15 @@ class FusionStream(Generic[T]):
         if at is None or at.pose is None:
             return scan
         slots = far_readings(scan, slab_slots, far)
-        points = places(scan, slots, Placement.of(at.pose, extrinsics.base_to_laser))
+        placement = Placement.of(at.pose, extrinsics.base_to_laser)
+        points = places(scan, slots, placement)
         if frame.stamp_ns != feed.far_frame:
             feed.far_frame, feed.far_before = frame.stamp_ns, feed.far_now
         feed.far_now = points
         ranges = scan.ranges[slots].astype(np.float64)
-        kept = confirmed(points, ranges, feed.far_before, feed.config.depth_noise)
+        kept = confirmed(
+            points, ranges, feed.far_before, feed.config.depth_noise, (placement.x, placement.y)
+        )
         if kept.all():
             return scan
         filtered = scan.ranges.copy()
