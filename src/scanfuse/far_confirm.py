@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanfuse.scan_matching import points
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
@@ -38,11 +40,9 @@ def far_readings(scan: Scan, slab_slots: Mask, far: float) -> Mask:
 
 def places(scan: Scan, slots: Mask, placement: Placement) -> F64:
     """The (N, 2) odometry-frame points of `scan`'s readings in `slots`, seen from `placement`."""
-    index = np.flatnonzero(slots)
-    angles = scan.angle_min + index * scan.angle_increment
-    ranges = scan.ranges[index].astype(np.float64)
-    x, y = placement.to_odom(ranges * np.cos(angles), ranges * np.sin(angles))
-    return np.column_stack([x, y])
+    x, y = points(scan)
+    odom_x, odom_y = placement.to_odom(x[slots], y[slots])
+    return np.column_stack([odom_x, odom_y])
 
 
 def confirmed(
