@@ -28,7 +28,6 @@ from scanfuse.memory import (
     Placement,
     lidar_misses,
     slab_points,
-    unbacked_readings,
     worth_remembering,
 )
 from scanfuse.motion import PlanarPose
@@ -156,17 +155,6 @@ def run() -> list[Row]:
         keep = worth_remembering(x, y, scan, scan, placement, (0.05, 0.02))
         cells.add_dense(x[keep], y[keep], 0, min_count=3, robot=(0.0, 0.0))
 
-    # Every slab pixel of the wall's frame (the stream keeps fewer: those behind their
-    # slot's reading the LiDAR does not see), reprojected each scan as the stream does.
-    wall_x, wall_y = slab_points(
-        depth, camera, view, slab=(0.03, 0.5), range_min=0.2, range_max=3.0
-    )
-
-    every_reading = np.isfinite(scan.ranges)
-
-    def backing() -> None:
-        unbacked_readings(scan, every_reading, scan, wall_x, wall_y, placement, 0.10, 1)
-
     points = len(memory)
     return [
         Row(
@@ -174,12 +162,6 @@ def run() -> list[Row]:
             f'add a scan + forget + project, {points} points, 1080 slots',
             median_seconds(per_scan),
             'target <= 0.3 ms',
-        ),
-        Row(
-            SECTION,
-            f"back 1080 readings with a 640x480 frame's {wall_x.size} slab pixels",
-            median_seconds(backing),
-            'once per output scan (`MEMORY_READING_BACKING`)',
         ),
         Row(
             SECTION,

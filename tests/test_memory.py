@@ -160,6 +160,23 @@ def test_a_remembered_box_is_drawn_from_where_the_lidar_stands_on_a_body_pitched
     assert value == pytest.approx(box_front_range() - 0.3 * math.sin(slope), abs=0.005)
 
 
+def test_a_box_is_remembered_where_its_pixels_are_not_where_a_coarse_slot_centres_its_edge():
+    # An output grid of 2 degree slots: the one centred 4 degrees left spans 3 to 5. The
+    # box's corners stand at atan(0.0812 / 1.5) = 3.1 degrees either side: the slot holds
+    # a sliver of the box's face and reads it, but its centre line passes the box. Set at
+    # that line, the reading would stand 1.5 (tan 4 - tan 3.1 deg) = 2.4 cm beside the box;
+    # seen later from beside it, a slot the box does not reach. Its pixels lie on the box.
+    half_width = 1.5 * math.tan(math.radians(3.1))
+    box = Box(1.5, 1.7, -half_width, half_width, 0.2)
+    stream = FusionStream(config(angle_increment=math.radians(2.0)))
+    robot = Robot(stream, [box])
+    robot.scan()
+    x, y = stream.memory.points()
+    assert x.size > 0
+    outside = np.maximum.reduce([box.x_min - x, x - box.x_max, np.abs(y) - half_width])
+    assert outside.max() <= 0.005
+
+
 class LedgeRobot(Robot):
     """The floor ends 1.2 m ahead of the start: beyond it lies 0.4 m lower (a loading dock)."""
 

@@ -11,8 +11,6 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from scanfuse.camera import CameraModel
 from scanfuse.errors import InputError
@@ -21,10 +19,8 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
-    backed_readings,
     not_nearer_than,
     slab_points,
-    unbacked_readings,
     unseen_by,
     worth_remembering,
 )
@@ -328,104 +324,6 @@ def test_pixels_far_apart_do_not_add_up_to_a_dense_cell():
     assert small.add_dense(x, np.full(3, 0.001), 0, min_count=3, robot=ORIGIN) == 0
     assert len(small) == 0
     assert memory.add_dense(x, np.full(3, 0.001), 0, min_count=2, robot=ORIGIN) == 1
-
-
-def test_a_reading_is_backed_by_slab_pixels_about_it_in_its_slot_or_the_next():
-    # Readings at 0, 10 and 20 degrees (1.5 m) and 30 degrees (2.0 m). Pixels: 5 cm behind
-    # the first; one slot (0.1 degree) beside the second at its range; 25 cm behind the
-    # third, farther than 10 cm; none about the fourth.
-    ranges = np.full(SLOTS, np.nan, np.float32)
-    for degrees, reach in ((0.0, 1.5), (10.0, 1.5), (20.0, 1.5), (30.0, 2.0)):
-        ranges[int(GRID.slot_of(np.array([math.radians(degrees)]))[0])] = reach
-    scan = Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
-                GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
-    bearings = np.radians([0.0, 10.1, 20.0])
-    reach = np.array([1.55, 1.5, 1.75])
-    x, y = reach * np.cos(bearings), reach * np.sin(bearings)
-    backed = backed_readings(x, y, scan, AT_ORIGIN, within=0.10, spread=1)
-    assert [at_degrees(backed, d) for d in (0.0, 10.0, 20.0, 30.0)] == [1.0, 1.0, 0.0, 0.0]
-    assert int(backed.sum()) == 2  # no slot without a reading is backed (10.1 degrees)
-    assert not backed_readings(x[:0], y[:0], scan, AT_ORIGIN, within=0.10).any()
-
-
-def test_a_reading_at_the_seam_of_a_full_turn_is_backed_from_the_other_end():
-    # The first slot points straight behind (-180 degrees), the last 0.1 degree before it
-    # (+179.9): neighbours on a turn, 3600 slots apart in the array.
-    ranges = np.full(SLOTS, np.nan, np.float32)
-    ranges[0] = ranges[SLOTS - 1] = 1.5
-    scan = Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
-                GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
-    behind = np.radians([179.9])  # in the last slot only
-    x, y = 1.5 * np.cos(behind), 1.5 * np.sin(behind)
-    backed = backed_readings(x, y, scan, AT_ORIGIN, within=0.10, spread=1)
-    assert backed[0]
-    assert backed[SLOTS - 1]
-    half = Scan(0.0, math.pi - GRID.angle_increment, GRID.angle_increment, 0.1, 10.0,
-                ranges[: SLOTS // 2])  # fmt: skip
-    assert GRID.full_turn
-    assert not half.grid.full_turn
-
-
-def test_only_a_cameras_own_slab_readings_go_unbacked():
-    # The camera's readings at 1.5 m: 0 degrees (pixels behind it), 10 degrees (no pixels),
-    # 20 degrees (a drop-off's edge, no pixels: the floor is missing), 30 degrees (no
-    # pixels, but another source's 1.0 m is the merged scan's reading).
-    own = np.full(SLOTS, np.nan, np.float32)
-    slots = [int(GRID.slot_of(np.array([math.radians(d)]))[0]) for d in (0.0, 10.0, 20.0, 30.0)]
-    own[slots] = 1.5
-    merged = own.copy()
-    merged[slots[3]] = 1.0
-    slab = np.isfinite(own)
-    slab[slots[2]] = False
-
-    def scan(ranges):
-        return Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
-                    GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
-
-    x, y = np.array([1.55]), np.array([0.0])
-    unbacked = unbacked_readings(scan(own), slab, scan(merged), x, y, AT_ORIGIN, 0.10)
-    assert np.flatnonzero(unbacked).tolist() == [slots[1]]
-
-
-@settings(max_examples=40, deadline=None)
-@given(
-    seed=st.integers(0, 2**32 - 1),
-    grid=st.sampled_from(
-        [
-            GRID,  # a full turn from -180 degrees
-            AngleGrid(-math.radians(135), math.radians(0.25), 1081),  # 270 degrees (UST-10LX)
-            AngleGrid(math.pi, -2 * math.pi / 720, 720),  # a full turn, clockwise
-        ]
-    ),
-    sensor=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-math.pi, math.pi)),
-)
-def test_backed_readings_marks_the_slots_a_brute_force_count_finds(seed, grid, sensor):
-    rng = np.random.default_rng(seed)
-    ranges = rng.uniform(0.3, 3.0, grid.count).astype(np.float32)
-    ranges[rng.random(grid.count) < 0.3] = np.nan
-    scan = Scan(grid.angle_min, grid.angle_max, grid.angle_increment, 0.1, 10.0, ranges)
-    placement = Placement.of(PlanarPose(*sensor), Transform())
-    bearing = rng.uniform(-math.pi, math.pi, 400)
-    reach = rng.uniform(0.3, 3.0, 400)
-    # Away from slot boundaries: the kernel's bearing is within 2e-4 rad of arctan2's, 0.12
-    # of a tenth-degree slot.
-    along = np.mod((bearing - grid.angle_min) / grid.angle_increment + 0.5, 1.0)
-    clear = (along > 0.15) & (along < 0.85)
-    bearing, reach = bearing[clear], reach[clear]
-    # The points in the odometry frame, placed from the sensor's pose.
-    world = sensor[2] + bearing
-    x = sensor[0] + reach * np.cos(world)
-    y = sensor[1] + reach * np.sin(world)
-    expected = np.zeros(grid.count, dtype=bool)
-    for slot, r in zip(grid.slot_of(bearing), reach, strict=True):
-        if slot < 0:
-            continue
-        for step in (-1, 0, 1):
-            beside = (slot + step) % grid.count if grid.full_turn else slot + step
-            if 0 <= beside < grid.count and abs(r - float(ranges[beside])) <= 0.10:
-                expected[beside] = True
-    backed = backed_readings(x, y, scan, placement, within=0.10, spread=1)
-    assert np.flatnonzero(backed).tolist() == np.flatnonzero(expected).tolist()
 
 
 def test_points_seen_since_a_stamp_move_with_the_frames_correction_and_older_ones_stay():

@@ -4,9 +4,8 @@ The depth camera sees about 87 degrees, the LiDAR 360; a low obstacle that leave
 camera's view falls back to the LiDAR's reading, which passes over it. The memory keeps
 the camera's obstacle points in the odometry frame and merges them into every output
 scan, seen from the LiDAR at the scan's stamp. What it takes in (`FusionStream`): the
-depth scan's reading of every slot (a camera's slab reading only with slab pixels of its
-frame about it, `unbacked_readings`: floor noise that one slot lifted into the slab has
-none), and per depth frame every slab pixel no nearer than
+depth scan's reading of every slot that is not a camera's slab reading (a drop-off's edge,
+a point cloud's reading), and per depth frame every slab pixel no nearer than
 its slot's reading (`slab_points`, `not_nearer_than`: a box's sides, its top back to the
 far edge, not only the face nearest the LiDAR) that agrees with both its horizontal
 neighbours (`agreement`: a pixel on a box's outline, or one that stereo noise threw back
@@ -858,100 +857,6 @@ def lidar_misses(
 
 
 _SLAB = compiled(_slab_loop)
-
-
-def _backed_loop(
-    xs: Any,
-    ys: Any,
-    ox: float,
-    oy: float,
-    xx: float,
-    xy: float,
-    yx: float,
-    yy: float,
-    angle_min: float,
-    increment: float,
-    turn: int,
-    full: bool,
-    reading: Any,
-    within: float,
-    spread: int,
-    backed: Any,
-) -> None:
-    """`backed_readings` one point at a time: mark in `backed` each slot of `reading` (NaN:
-    none) within `spread` of a point's slot whose reading lies within `within` of its
-    range from the sensor at (ox, oy) (rows of the rotation: xx xy / yx yy).
-
-    Compiled: it runs on every output scan over the frame's slab pixels, and numpy's
-    arctan2, hypot and three gathers took 2.0 ms for the 43 520 of the benchmark's frame
-    (`benchmarks/bench_memory.py`), this loop 0.76 ms (one process, the same inputs)."""
-    count = reading.size
-    scale = 1.0 / increment
-    for i in range(xs.size):
-        dx = xs[i] - ox
-        dy = ys[i] - oy
-        x = xx * dx + xy * dy
-        y = yx * dx + yy * dy
-        reach = math.sqrt(x * x + y * y)
-        # As `_forget_and_project_loop`: the slot whose interval holds the bearing.
-        centre = (fast_atan2(y, x) - angle_min) * scale + 0.5
-        if not 0.0 <= centre < turn:
-            centre -= turn * math.floor(centre / turn)
-        slot = int(centre)
-        if slot >= count:
-            continue  # outside a grid that is not a full turn
-        for step in range(-spread, spread + 1):
-            beside = slot + step
-            if full:
-                beside %= count
-            elif not 0 <= beside < count:
-                continue
-            if abs(reach - reading[beside]) <= within:  # False against NaN: no reading
-                backed[beside] = True
-
-
-_BACKED = compiled(_backed_loop)
-
-
-def backed_readings(
-    x: F64, y: F64, scan: Scan, sensor: Placement, within: float, spread: int = 1
-) -> npt.NDArray[np.bool_]:
-    """Per slot of `scan` (seen from `sensor`): a point (odometry frame) lies in it or in a
-    slot up to `spread` beside it, no more than `within` metres nearer or farther than its
-    reading. A reading on a surface has its slab pixels about it; one that stereo noise of
-    the floor lifted into the slab in one slot has none that survive `slab_points`."""
-    backed = np.zeros(len(scan), dtype=np.bool_)
-    if x.size == 0:
-        return backed
-    grid = scan.grid
-    reading = _usable_reading(scan, np.arange(len(scan)))
-    _BACKED(
-        np.ascontiguousarray(x, dtype=np.float64),
-        np.ascontiguousarray(y, dtype=np.float64),
-        sensor.x, sensor.y, sensor.xx, sensor.xy, sensor.yx, sensor.yy,
-        grid.angle_min, grid.angle_increment, round(TWO_PI / abs(grid.angle_increment)),
-        grid.full_turn, reading, within, spread, backed,
-    )  # fmt: skip
-    return backed
-
-
-def unbacked_readings(
-    own: Scan,
-    slab_slots: npt.NDArray[np.bool_],
-    merged: Scan,
-    x: F64,
-    y: F64,
-    sensor: Placement,
-    within: float,
-    spread: int = 1,
-) -> npt.NDArray[np.bool_]:
-    """The slots where `merged` takes `own`'s reading of the slab (`slab_slots`: not a
-    drop-off's edge) and no slab pixel of the frame `own` came from (x, y, odometry frame)
-    backs it (`backed_readings`). Both scans share a grid."""
-    with np.errstate(invalid='ignore'):
-        taken = slab_slots & (own.ranges <= merged.ranges)  # False against NaN: no reading
-    unbacked: npt.NDArray[np.bool_] = taken & ~backed_readings(x, y, own, sensor, within, spread)
-    return unbacked
 
 
 def _reach_and_slot(
