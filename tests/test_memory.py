@@ -177,6 +177,28 @@ def test_a_box_is_remembered_where_its_pixels_are_not_where_a_coarse_slot_centre
     assert outside.max() <= 0.005
 
 
+class SpeckRobot(Robot):
+    """An empty floor with one pixel (the image's centre column, row 180) at 0.8 of its
+    depth: along the ray from a camera 0.4 m up, a point 0.2 x 0.4 = 8 cm above the floor,
+    in the slab, alone: stereo noise lifting one pixel of the floor."""
+
+    def render(self, view: Transform) -> np.ndarray:
+        depth = super().render(view)
+        depth[180, 160] = round(0.8 * int(depth[180, 160]))
+        return depth
+
+
+def test_a_reading_of_one_stray_pixel_is_shown_but_not_remembered():
+    stream = FusionStream(config())
+    robot = SpeckRobot(stream, [])
+    seen = robot.scan()
+    live = seen.instant if seen.instant is not None else seen.fused
+    assert np.isfinite(live.ranges).sum() == 1  # the speck's slot, from the camera
+    # Its neighbours disagree with it by 25 %, so it is no pixel the memory takes, and no
+    # pixel stands for its slot's reading.
+    assert len(stream.memory) == 0
+
+
 class LedgeRobot(Robot):
     """The floor ends 1.2 m ahead of the start: beyond it lies 0.4 m lower (a loading dock)."""
 

@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from scanfuse.camera import CameraModel
 from scanfuse.errors import InputError
@@ -19,6 +21,7 @@ from scanfuse.memory import (
     MemorySettings,
     ObstacleMemory,
     Placement,
+    nearest_pixels,
     not_nearer_than,
     slab_points,
     unseen_by,
@@ -324,6 +327,71 @@ def test_pixels_far_apart_do_not_add_up_to_a_dense_cell():
     assert small.add_dense(x, np.full(3, 0.001), 0, min_count=3, robot=ORIGIN) == 0
     assert len(small) == 0
     assert memory.add_dense(x, np.full(3, 0.001), 0, min_count=2, robot=ORIGIN) == 1
+
+
+def test_a_reading_is_stood_for_by_the_pixel_of_its_slot_nearest_its_range():
+    # Readings at 0 and 10 degrees (1.5 m) and 20 degrees (2.0 m), all three asked for but
+    # the last. Pixels: 1.58 m and 1.52 m in the first's slot (the nearer stands for it), one
+    # a slot (0.1 degree) beside it at 1.5 m (not its slot); 1.6 m in the second's, 10 cm
+    # off (none within 5 cm); 2.0 m in the third's, which is not asked for.
+    ranges = np.full(SLOTS, np.nan, np.float32)
+    slots = np.zeros(SLOTS, dtype=bool)
+    for degrees, reach, asked in ((0.0, 1.5, True), (10.0, 1.5, True), (20.0, 2.0, False)):
+        slot = int(GRID.slot_of(np.array([math.radians(degrees)]))[0])
+        ranges[slot], slots[slot] = reach, asked
+    scan = Scan(GRID.angle_min, GRID.angle_min + (SLOTS - 1) * GRID.angle_increment,
+                GRID.angle_increment, 0.1, 10.0, ranges)  # fmt: skip
+    bearings = np.radians([0.0, 0.0, 0.1, 10.0, 20.0])
+    reach = np.array([1.58, 1.52, 1.5, 1.6, 2.0])
+    x, y = reach * np.cos(bearings), reach * np.sin(bearings)
+    assert nearest_pixels(x, y, scan, slots, AT_ORIGIN, within=0.05).tolist() == [1]
+    assert nearest_pixels(x[:0], y[:0], scan, slots, AT_ORIGIN, within=0.05).size == 0
+    # Seen from 1 m further along x, the same pixels lie 1 m nearer in the same slots.
+    ahead = Placement.of(PlanarPose(1.0, 0.0, 0.0), Transform())
+    ranges[int(GRID.slot_of(np.array([0.0]))[0])] = 0.5
+    assert nearest_pixels(x, y, scan, slots, ahead, within=0.05).tolist() == [1]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    grid=st.sampled_from(
+        [
+            GRID,  # a full turn from -180 degrees
+            AngleGrid(-math.radians(135), math.radians(0.25), 1081),  # 270 degrees (UST-10LX)
+            AngleGrid(math.pi, -2 * math.pi / 720, 720),  # a full turn, clockwise
+        ]
+    ),
+    sensor=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-math.pi, math.pi)),
+)
+def test_nearest_pixels_picks_what_a_search_of_every_point_picks(seed, grid, sensor):
+    rng = np.random.default_rng(seed)
+    ranges = rng.uniform(0.3, 3.0, grid.count).astype(np.float32)
+    ranges[rng.random(grid.count) < 0.3] = np.nan
+    scan = Scan(grid.angle_min, grid.angle_max, grid.angle_increment, 0.1, 10.0, ranges)
+    asked = rng.random(grid.count) < 0.7
+    placement = Placement.of(PlanarPose(*sensor), Transform())
+    # Points at the readings' ranges, give or take 8 cm, so that many lie within 5 cm.
+    slot_of_point = rng.integers(0, grid.count, 3000)
+    reading = np.nan_to_num(ranges[slot_of_point].astype(np.float64), nan=1.5)
+    reach = reading + rng.uniform(-0.08, 0.08, slot_of_point.size)
+    # Away from slot boundaries: the kernel's bearing is within 2e-4 rad of arctan2's.
+    bearing = grid.angle_min + grid.angle_increment * (
+        slot_of_point + rng.uniform(-0.35, 0.35, slot_of_point.size)
+    )
+    world = sensor[2] + bearing
+    x = sensor[0] + reach * np.cos(world)
+    y = sensor[1] + reach * np.sin(world)
+    expected = []
+    for slot in range(grid.count):
+        if not asked[slot] or not np.isfinite(ranges[slot]):
+            continue
+        mine = np.flatnonzero(slot_of_point == slot)
+        gaps = np.abs(reach[mine] - float(ranges[slot]))
+        if mine.size and gaps.min() <= 0.05:
+            expected.append(int(mine[np.argmin(gaps)]))
+    chosen = nearest_pixels(x, y, scan, asked, placement, within=0.05)
+    assert chosen.tolist() == expected
 
 
 def test_points_seen_since_a_stamp_move_with_the_frames_correction_and_older_ones_stay():

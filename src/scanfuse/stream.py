@@ -71,6 +71,7 @@ from scanfuse.memory import (
     ObstacleMemory,
     Placement,
     lidar_misses,
+    nearest_pixels,
     slab_points,
     worth_remembering,
 )
@@ -119,6 +120,9 @@ MEMORY_NEIGHBOUR_AGREEMENT = 0.02
 # A remembered point the LiDAR sees (its reading no farther than the point by this much,
 # metres and share of the range: the evaluation's tolerance) is not kept: `unseen_by`.
 LIDAR_SEES_MARGIN = (0.05, 0.02)
+# A camera's slab reading is remembered as the pixel of its frame that stands for it: in its
+# slot, within this many metres of its range (`_add_pixels_for`).
+READING_PIXEL_WITHIN = 0.05
 # Slower than this between two scans (m/s, rad/s) the robot stands still: with
 # `memory_ages_while_stopped` false the memory does not age then (`_age_while_moving`).
 # Far above a standing robot's odometry noise, far below any commanded motion.
@@ -148,14 +152,12 @@ def _slab_readings(camera: _Seen, depth_scan: Scan) -> Mask:
     """The slots where `depth_scan` takes `camera`'s reading of the collision slab (none for
     a camera without slab readings: the row method).
 
-    The memory takes such an obstacle as the frame's slab pixels, where they lie. A reading
-    is the nearest cluster of its slot's pixels set on the slot's centre line: a box's edge
-    that only grazes a slot stands that far beside the box (2.4 cm at 1.5 m in 2 degree
-    slots), and the near cluster of noisy pixels stands before its face. Seen later from
-    beside it, either fills a slot the box does not reach. Remembered too, readings gave 1.15
-    % false obstacles on slopes against 1.00 % without, on the terrain drives over ramps, a
-    ledge and a mounting off (two of each). A drop-off's edge (no slab pixels: the floor is
-    missing there) and a point cloud's reading are remembered as readings.
+    The memory takes such a reading as the pixel that stands for it (`_add_pixels_for`),
+    not as the reading: that is the nearest cluster of its slot's pixels set on the slot's
+    centre line, so the edge of a box that only grazes a slot stood beside the box (2.4 cm
+    at 1.5 m in 2 degree slots), and seen later from beside it filled a slot the box does not
+    reach. A drop-off's edge (no slab pixels: the floor is missing there) and a point
+    cloud's reading are remembered as readings.
     """
     if camera.depth_scan is None or camera.slab_slots is None:
         return np.zeros(len(depth_scan), dtype=np.bool_)
@@ -335,6 +337,9 @@ class FusionStream(Generic[T]):
         self._memory_path: deque[tuple[int, int, PlanarPose]] = deque(maxlen=MEMORY_PATH_SCANS)
         self._memory_placed_ns: int | None = None  # last scan the memory could be placed for
         self._memory_motion: tuple[int, PlanarPose] | None = None  # last scan's stamp, pose
+        # Per camera, the slab pixels its latest frame gave the memory (that frame's stamp,
+        # odometry frame): what stands for its readings (`_add_pixels_for`).
+        self._slab_points: dict[str, tuple[int, F64, F64]] = {}
         self.trail: GroundTrail | None = None  # `ground_trail`: the ground driven over
         self.assembler: FragmentAssembler[T] | None = None
         # `publish_rate`: the first LiDAR's recent scans, and the next output stamp.
@@ -1373,15 +1378,18 @@ class FusionStream(Generic[T]):
                 continue
             feed.cleared_with = frame.stamp_ns
             if output.depth_scan is not None:
-                self._add_slab(
+                self._slab_points[feed.name] = (frame.stamp_ns, *self._add_slab(
                     memory, feed, frame, seen_from, output.depth_scan, output.every_lidar,
                     placement, robot,
-                )  # fmt: skip
+                ))  # fmt: skip
         if output.depth_scan is not None:
-            # A camera's slab readings are not: its pixels stand for them (`_add_slab`).
-            keep = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
+            unseen = lidar_misses(output.depth_scan, output.every_lidar, LIDAR_SEES_MARGIN)
+            keep = unseen.copy()
             for camera in paired:
-                keep &= ~_slab_readings(camera, output.depth_scan)
+                taken = _slab_readings(camera, output.depth_scan)
+                keep &= ~taken
+                self._add_pixels_for(memory, camera, output.depth_scan, taken & unseen,
+                                     placement, scan.stamp_ns, robot)  # fmt: skip
             memory.add_scan(output.depth_scan, placement, scan.stamp_ns, keep, robot=robot)
         # Readings are added from the level placement: a camera's reading lies in the
         # tilted body's plane, and setting it down level turns it about the base's origin,
@@ -1506,11 +1514,12 @@ class FusionStream(Generic[T]):
         lidar: Scan,
         placement: Placement,
         robot: tuple[float, float],
-    ) -> None:
+    ) -> tuple[F64, F64]:
         """Remember the slab pixels of `frame` behind their slot's obstacle reading that
         agree with their neighbours, as the mean of each dense cell's: a box's sides and far
         corners, not only the face nearest the LiDAR, so that what clearing forgets of a
-        place is replaced by all the camera sees there."""
+        place is replaced by all the camera sees there. Returns those pixels (odometry
+        frame)."""
         config = self.config
         own = feed.config
         profile = None if feed.ground is None else feed.ground.profile
@@ -1533,6 +1542,31 @@ class FusionStream(Generic[T]):
         keep = worth_remembering(x, y, depth_scan, lidar, placement, LIDAR_SEES_MARGIN)
         x, y = x[keep], y[keep]
         memory.add_dense(x, y, depth_scan.stamp_ns, min_count=MEMORY_CELL_PIXELS, robot=robot)
+        return x, y
+
+    def _add_pixels_for(
+        self,
+        memory: ObstacleMemory,
+        camera: _Seen,
+        depth_scan: Scan,
+        slots: Mask,
+        placement: Placement,
+        stamp_ns: int,
+        robot: tuple[float, float],
+    ) -> None:
+        """Remember, for each of `camera`'s slab readings in `slots` (the merged
+        `depth_scan`'s, seen from `placement`), the pixel its frame gave the memory in that
+        slot nearest the reading's range (`READING_PIXEL_WITHIN`): where the obstacle is,
+        not on the slot's centre line. A reading no such pixel stands for (the floor's noise
+        that one slot lifted into the slab) is not remembered."""
+        if camera.frame is None or not slots.any():
+            return
+        given = self._slab_points.get(camera.feed.name)
+        if given is None or given[0] != camera.frame.stamp_ns:
+            return  # not this frame's pixels: none stands for its readings
+        _, x, y = given
+        chosen = nearest_pixels(x, y, depth_scan, slots, placement, READING_PIXEL_WITHIN)
+        memory.add(x[chosen], y[chosen], stamp_ns, robot=robot)
 
     def _age_while_moving(self, memory: ObstacleMemory, stamp_ns: int, pose: PlanarPose) -> None:
         """Stop the memory's clock for the time since the last scan if odometry says the
@@ -1561,6 +1595,7 @@ class FusionStream(Generic[T]):
 
     def _drop_memory(self, why: str) -> None:
         self.drift.reset()  # the odometry frame the correction was for is gone too
+        self._slab_points.clear()  # and the pixels placed in it
         if self.memory is not None and len(self.memory):
             self.memory.clear()
             self.counts.memory_dropped += 1
