@@ -11,14 +11,18 @@ import math
 import numpy as np
 import pytest
 
+from scanfuse.config import FusionConfig
 from scanfuse.far_confirm import confirmed
 from scanfuse.stream import FusionStream
 from tests.support.render import Box
 from tests.test_memory import Robot, config, reading_at
 
-FAR_BOX = Box(2.5, 2.7, -0.1, 0.1, 0.2)  # straight ahead, beyond the default 2 m
-NEAR_BOX = Box(1.5, 1.7, 0.5, 0.7, 0.2)  # ahead and to the left, within it
-NEAR_BEARING = math.atan2(0.6, 1.5)
+FAR_BOX = Box(2.5, 2.7, -0.1, 0.1, 0.2)  # straight ahead, beyond the default 1.5 m
+MIDDLE_BOX = Box(1.8, 2.0, 0.5, 0.7, 0.2)  # ahead and to the left, 1.9 m: beyond it too
+MIDDLE_BEARING = math.atan2(0.6, 1.8)
+NEAR_BOX = Box(0.8, 1.0, -0.7, -0.5, 0.2)  # ahead and to the right, within it
+NEAR_BEARING = math.atan2(-0.6, 0.8)
+DEFAULT = FusionConfig.model_fields['far_confirm_range'].default
 
 
 def test_a_far_reading_needs_the_frame_before_within_5_cm_and_a_sigma():
@@ -32,14 +36,18 @@ def test_a_far_reading_needs_the_frame_before_within_5_cm_and_a_sigma():
 
 
 def test_a_far_box_is_reported_from_its_second_frame_a_near_one_from_its_first():
-    robot = Robot(FusionStream(config()), [FAR_BOX, NEAR_BOX])
+    robot = Robot(FusionStream(config(far_confirm_range=DEFAULT)), [FAR_BOX, MIDDLE_BOX, NEAR_BOX])
     first = robot.scan().depth_scan
-    assert np.isnan(first.ranges[first.grid.slot_of(np.array([0.0]))[0]])
+    for bearing in (0.0, MIDDLE_BEARING):
+        assert np.isnan(first.ranges[first.grid.slot_of(np.array([bearing]))[0]])
     assert reading_at(first, NEAR_BEARING)[0] == pytest.approx(
-        1.5 / math.cos(NEAR_BEARING), abs=0.03
+        0.8 / math.cos(NEAR_BEARING), abs=0.03
     )
     second = robot.scan().depth_scan
     assert reading_at(second, 0.0)[0] == pytest.approx(FAR_BOX.x_min, abs=0.03)
+    assert reading_at(second, MIDDLE_BEARING)[0] == pytest.approx(
+        1.8 / math.cos(MIDDLE_BEARING), abs=0.03
+    )
 
 
 def test_with_far_confirm_range_0_a_far_box_is_reported_from_its_first_frame():
@@ -51,7 +59,7 @@ def test_with_far_confirm_range_0_a_far_box_is_reported_from_its_first_frame():
 def test_a_far_reading_the_frame_before_did_not_show_is_dropped():
     # The box appears in the second frame (a far speck of noise does the same): not yet
     # shown; in the third, where the second showed it, it is.
-    robot = Robot(FusionStream(config()), [])
+    robot = Robot(FusionStream(config(far_confirm_range=DEFAULT)), [])
     robot.scan()
     robot.world = [FAR_BOX]
     second = robot.scan().depth_scan

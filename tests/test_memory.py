@@ -47,6 +47,9 @@ def config(**changes) -> FusionConfig:
         'camera_pitch': PITCH,
         'lidar_height': 0.3,
         'obstacle_min_points': 1,
+        # Each box is shown from its first frame: far readings' confirmation by the next
+        # frame has its own tests (tests/test_far_confirm.py).
+        'far_confirm_range': 0.0,
         **changes,
     }
     return FusionConfig(**values)

@@ -201,7 +201,13 @@ def test_camera_only_memory_keeps_a_box_the_camera_turned_away_from():
     # face 1.0 m away at bearing -90 degrees (within the evaluation's 0.05 m + 2 %).
     pitch = math.radians(15.0)
     config = FusionConfig.from_dict(
-        {'scan_topic': '', 'use_tf': False, 'camera_height': 0.4, 'camera_pitch': pitch}
+        {
+            'scan_topic': '',
+            'use_tf': False,
+            'camera_height': 0.4,
+            'camera_pitch': pitch,
+            'far_confirm_range': 0.0,  # the box shown from its first frame: test_far_confirm.py
+        }
     )
     camera = CameraModel.from_intrinsics(320, 240, 200.0, 200.0, 159.5, 119.5, frame_id='optical')
     stream: FusionStream[int] = FusionStream(config)

@@ -147,6 +147,7 @@ def front_and_rear_cameras(**changes) -> FusionConfig:
     values = {
         'use_tf': False,
         'memory': False,
+        'far_confirm_range': 0.0,  # each box shown from its first frame: test_far_confirm.py
         'obstacle_min_points': 1,
         'lidar_height': 0.3,
         'cameras': ['front_depth', 'rear_depth'],

@@ -39,6 +39,7 @@ def config(**changes) -> FusionConfig:
         'range_max': 3.0,
         'obstacle_min_points': 1,
         'memory': False,  # the memory has its own tests (test_memory.py)
+        'far_confirm_range': 0.0,  # and far readings' confirmation (test_far_confirm.py)
         **changes,
     }
     return FusionConfig(**values)
