@@ -1,7 +1,7 @@
 """Far camera readings kept once a second frame shows them (`scanfuse.far_confirm`).
 
-Worked by hand: at 2.5 m the tolerance is 5 cm plus one sigma of a D435's depth noise,
-0.01 * 2.5^2 = 6.25 cm, so 11.25 cm.
+Worked by hand: at 2.5 m the tolerance is 3 cm plus half a sigma of a D435's depth noise
+(0.01 * 2.5^2 = 6.25 cm), so 6.125 cm.
 """
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ NEAR_BEARING = math.atan2(-0.6, 0.8)
 DEFAULT = FusionConfig.model_fields['far_confirm_range'].default
 
 
-def test_a_far_reading_needs_the_frame_before_within_5_cm_and_a_sigma():
+def test_a_far_reading_needs_the_frame_before_within_3_cm_and_half_a_sigma():
     points = np.array([[2.5, 0.0], [2.5, 1.0]])
     ranges = np.array([2.5, math.hypot(2.5, 1.0)])
-    before = np.array([[2.5 + 0.11, 0.0], [2.5, 1.0 + 0.13]])
-    # 11 cm off at 2.5 m: within 11.25 cm; 13 cm off at 2.69 m: beyond 5 + 7.25 cm.
+    before = np.array([[2.5 + 0.06, 0.0], [2.5, 1.0 + 0.07]])
+    # 6 cm off at 2.5 m: within 6.125 cm; 7 cm off at 2.69 m: beyond 3 + 7.25 / 2 cm.
     assert confirmed(points, ranges, before, 0.01, (0.0, 0.0)).tolist() == [True, False]
     assert confirmed(points, ranges, before, 0.0, (0.0, 0.0)).tolist() == [False, False]
     assert confirmed(points, ranges, np.zeros((0, 2)), 0.01, (0.0, 0.0)).tolist() == [False, False]
@@ -83,5 +83,5 @@ def test_the_bearing_windows_find_what_measuring_every_pair_finds():
         gaps = np.hypot(
             points[:, 0, None] - before[None, :, 0], points[:, 1, None] - before[None, :, 1]
         )
-        every_pair = (gaps <= 0.05 + 0.01 * ranges[:, None] ** 2).any(axis=1)
+        every_pair = (gaps <= 0.03 + 0.005 * ranges[:, None] ** 2).any(axis=1)
         np.testing.assert_array_equal(confirmed(points, ranges, before, 0.01, origin), every_pair)

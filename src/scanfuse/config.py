@@ -226,10 +226,10 @@ class FusionConfig(BaseModel):
         allow_inf_nan=False,
         description=(
             "obstacle method, with odometry: a camera's slab reading farther than this, metres, "
-            'is kept only when its previous frame had one within 5 cm plus one sigma of '
+            'is kept only when its previous frame had one within 3 cm plus half a sigma of '
             'depth_noise of its place (far floor noise differs frame to frame, an obstacle '
             'stays); nearer ones at once; 0: every reading at once. A low obstacle moving '
-            'faster than that tolerance a frame (1.1 m/s at 1.5 m, 15 Hz) is shown once '
+            'faster than that tolerance a frame (0.6 m/s at 1.5 m, 15 Hz) is shown once '
             'nearer. 1.5 chosen by `scanfuse evaluate` (terrain: false obstacles on slopes '
             '0.85 -> 0.75 %; 1.0 gave 0.70 % but a collision, docs/simulation.md)'
         ),
