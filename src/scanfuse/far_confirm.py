@@ -7,8 +7,8 @@ steeply). Each frame's noise is its own, so such a reading seldom stands where t
 frame before had one; an obstacle's does. A slab reading farther than `far_confirm_range` is
 kept when the previous frame had a slab reading within `FAR_CONFIRM_ABSOLUTE` plus
 `FAR_CONFIRM_SIGMAS` sigmas of its place in the odometry frame; a nearer one, at once. An
-obstacle's reading is the near edge of many pixels (`obstacle_min_points`), steady to well
-under a sigma from frame to frame, so the window need not be wide. The robot, still more
+obstacle's reading is the near edge of many pixels (`obstacle_min_points`), far steadier
+from frame to frame than one pixel, so the window need not be wide. The robot, still more
 than that range away, sees a far obstacle one frame later. Pure numpy.
 """
 
