@@ -110,8 +110,10 @@ class CameraFeed:
         self.ground_frame_ns: int | None = None  # the frame `ground` was last updated with
         self.cleared_with: int | None = None  # the frame the memory last forgot with
         # `far_confirm`: the far slab readings' places (odometry frame) of the frame last
-        # fused (`far_frame`) and of the one before it, which confirms them.
+        # fused (`far_frame`, its odometry segment `far_segment`) and of the one before it,
+        # which confirms them.
         self.far_frame: int | None = None
+        self.far_segment: int | None = None
         self.far_now: npt.NDArray[np.float64] = np.zeros((0, 2))
         self.far_before: npt.NDArray[np.float64] = np.zeros((0, 2))
 
@@ -125,6 +127,7 @@ class CameraFeed:
         self.model, self.frames = old.model, old.frames
         self.last_arrival_ns, self.cleared_with = old.last_arrival_ns, old.cleared_with
         self.far_frame, self.far_now, self.far_before = old.far_frame, old.far_now, old.far_before
+        self.far_segment = old.far_segment
         if (
             old.ground is not None
             and self.ground is not None

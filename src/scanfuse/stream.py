@@ -1004,8 +1004,11 @@ class FusionStream(Generic[T]):
         placement = Placement.of(at.pose, extrinsics.base_to_laser)
         points = places(scan, slots, placement)
         if frame.stamp_ns != feed.far_frame:
-            feed.far_frame, feed.far_before = frame.stamp_ns, feed.far_now
-        feed.far_now = points
+            # Places across an odometry jump (a reset) lie in another frame: none confirms.
+            same_frame = feed.far_segment == at.segment
+            feed.far_before = feed.far_now if same_frame else np.zeros((0, 2))
+            feed.far_frame = frame.stamp_ns
+        feed.far_now, feed.far_segment = points, at.segment
         ranges = scan.ranges[slots].astype(np.float64)
         kept = confirmed(
             points, ranges, feed.far_before, feed.config.depth_noise, (placement.x, placement.y)
