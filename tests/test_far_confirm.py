@@ -14,9 +14,9 @@ import pytest
 from scanfuse.config import FusionConfig
 from scanfuse.far_confirm import confirmed
 from scanfuse.motion import PlanarPose
-from scanfuse.stream import FusionStream, StreamOutput
-from tests.support.render import Box, camera_in_world
-from tests.test_memory import HEIGHT, NS, PITCH, Robot, config, lidar, reading_at
+from scanfuse.stream import FusionStream
+from tests.support.render import Box
+from tests.test_memory import NS, Robot, config, reading_at
 
 FAR_BOX = Box(2.5, 2.7, -0.1, 0.1, 0.2)  # straight ahead, beyond the default 1.5 m
 MIDDLE_BOX = Box(1.8, 2.0, 0.5, 0.7, 0.2)  # ahead and to the left, 1.9 m: beyond it too
@@ -100,18 +100,7 @@ def test_after_an_odometry_jump_the_frame_before_confirms_nothing():
     jumped = PlanarPose(0.5, 0.0, 0.0)
     robot.now += NS // 50
     robot.stream.add_odometry(robot.now, jumped)
-    first = scan_from(robot, jumped).depth_scan
+    first = robot.scan(odometry=jumped).depth_scan
     assert np.isnan(first.ranges[first.grid.slot_of(np.array([0.0]))[0]])
-    second = scan_from(robot, jumped).depth_scan
+    second = robot.scan(odometry=jumped).depth_scan
     assert reading_at(second, 0.0)[0] == pytest.approx(2.0, abs=0.03)
-
-
-def scan_from(robot: Robot, odometry: PlanarPose) -> StreamOutput[None]:
-    """`Robot.scan` with the odometry saying `odometry` while the robot stands where it is
-    (`robot.pose`, in the world)."""
-    robot.now += NS // 50
-    robot.stream.add_odometry(robot.now, odometry)
-    view = camera_in_world(robot.pose.x, robot.pose.y, robot.pose.yaw, height=HEIGHT, pitch=PITCH)
-    robot.stream.add_depth(robot.now - 20_000_000, robot.render(view), robot.now - 5_000_000)
-    (out,) = robot.stream.add_scan(lidar(robot.now), None, robot.now + 1_000_000)
-    return out

@@ -96,10 +96,11 @@ class Robot:
     def render(self, view: Transform) -> np.ndarray:
         return depth_image(CAMERA, view, self.world)
 
-    def scan(self, *, camera: bool = True):
-        """One depth frame (20 ms old, same pose: the robot stands) and one LiDAR scan."""
+    def scan(self, *, camera: bool = True, odometry: PlanarPose | None = None):
+        """One depth frame (20 ms old, same pose: the robot stands) and one LiDAR scan;
+        `odometry`: what odometry says, when not the robot's pose (after a reset)."""
         self.now += NS // 50
-        self.stream.add_odometry(self.now, self.pose)
+        self.stream.add_odometry(self.now, self.pose if odometry is None else odometry)
         if camera:
             view = camera_in_world(
                 self.pose.x, self.pose.y, self.pose.yaw, height=HEIGHT, pitch=PITCH
