@@ -203,15 +203,37 @@ def test_the_rigid_robot_cannot_climb_the_ramp():
 @pytest.mark.parametrize(('seed', 'heading'), [(1, 0.0), (3, 10.0), (4, -10.0)])
 def test_the_robot_drives_over_sills_without_contacts(seed, heading):
     # Square to the door or 10 degrees off it (as a planned path crosses it), through the
-    # door's middle 1.5 m ahead.
+    # door's middle 1.5 m ahead; stopping short of the middle room's low box.
     sim = Simulation(SimConfig(world='sills', seed=seed, robot=SPRUNG, **LOW))
     try:
         door = next(p for p in sim.world.ground if p.name == 'sill0_top').rectangle
         yaw = math.radians(heading)
         sim.place(Pose2D(0.0, (door[2] + door[3]) / 2 - 1.5 * math.tan(yaw), yaw))
-        trace = drive_straight(sim, 0.3, 9.0)
+        trace = drive_straight(sim, 0.3, 7.0)
         assert trace.states[-1].position[0] > 1.5 + 0.3  # past the first door's sill
         assert not trace.contacts
+        assert sim.fell_ns is None
+    finally:
+        sim.close()
+
+
+@pytest.mark.parametrize(('seed', 'heading'), [(1, 0.0), (3, 15.0)])
+def test_the_robot_stays_upright_over_a_sill_at_cruising_speed(seed, heading):
+    # At the terrain trials' 0.35 m/s from 1.2 m before the sill's bevel: with a 2 ms physics
+    # step the body bounced off the bevel and tipped over in these two drives.
+    sim = Simulation(SimConfig(world='sills', seed=seed, robot=SPRUNG, **LOW))
+    try:
+        assert sim.config.physics_step == SPRUNG.suspension.timestep
+        bevel = next(p for p in sim.world.ground if p.name == 'sill0_in').rectangle
+        yaw = math.radians(heading)
+        sim.place(Pose2D(0.3, (bevel[2] + bevel[3]) / 2 - 1.2 * math.tan(yaw), yaw))
+        trace = drive_straight(sim, 0.35, 7.0)
+        assert trace.states[-1].position[0] > 1.5 + 0.3  # past the sill
+        # The body's up axis stays within 15 degrees of the vertical all the way.
+        up = np.array(
+            [1.0 - 2.0 * (q[0] ** 2 + q[1] ** 2) for q in (s.orientation for s in trace.states)]
+        )
+        assert np.degrees(np.arccos(up.min())) < 15.0
         assert sim.fell_ns is None
     finally:
         sim.close()

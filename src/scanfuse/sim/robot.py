@@ -97,11 +97,12 @@ class Suspension:
     The hinge's axis is base_link's y axis through its origin; `stiffness` (N m/rad) and
     `damping` (N m s/rad) hold the body level, `travel` (radians) limits its pitch either way.
     Braking pitches the body nose-down on its hinge and the running gear on its wheel springs
-    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.1 degrees at
+    (its rear caster lifts): `sprung`'s numbers (tuned in MuJoCo) give about 2.8 degrees at
     the peak braking hard (the wheels' torque limit) from 0.35 m/s, about as much nose-up
-    setting off; climbing a ramp it leans back 1-2 degrees beyond the ramp's angle. A rigid
-    robot with two casters cannot climb onto a ramp: the caster ahead of the wheels rides up
-    the ramp's foot and lifts them off the floor.
+    setting off (2.4 at a 2 ms physics step, whose integrator damps more); climbing a ramp it
+    leans back 1-2 degrees beyond the ramp's angle. A rigid robot with two casters cannot
+    climb onto a ramp: the caster ahead of the wheels rides up the ramp's foot and lifts them
+    off the floor.
     """
 
     stiffness: float = 3000.0
@@ -114,6 +115,13 @@ class Suspension:
     wheel_stiffness: float = 2500.0
     wheel_damping: float = 300.0
     wheel_preload: float = 0.015
+    # The physics step it needs, seconds (`SimConfig.physics_step`). At 2 ms, driving straight
+    # at a door sill at 0.35 m/s (the terrain trials' cruising speed), the body bounced off
+    # the sill's bevel and tipped over in 2 of 15 drives (seeds 0-4, 0/8/15 degrees off
+    # square); at 1 ms none of 90 did (seeds 0-9, -8/0/15 degrees, 0.2 and 0.35 m/s, and a
+    # turn on the sill). At 1 ms, wheel springs of 3000 N/m (preload 1.25 cm) or wheel
+    # damping of 400 N s/m tipped it over again in 10 and 3 of those 90.
+    timestep: float = 0.001
 
     def __post_init__(self) -> None:
         if not (self.stiffness > 0.0 and self.damping >= 0.0 and 0.0 < self.travel < 0.5):
@@ -121,6 +129,9 @@ class Suspension:
                 f'suspension needs stiffness > 0 N m/rad, damping >= 0 N m s/rad and travel '
                 f'in (0, 0.5) rad, got {self.stiffness}, {self.damping}, {self.travel}'
             )
+            raise SimError(msg)
+        if not 0.0 < self.timestep <= 0.01:
+            msg = f'suspension timestep {self.timestep} s must be in (0, 0.01]'
             raise SimError(msg)
         wheels = (self.wheel_stiffness, self.wheel_damping, self.wheel_preload)
         if not (wheels[0] > 0.0 and wheels[1] >= 0.0 and 0.0 < wheels[2] < 0.05):

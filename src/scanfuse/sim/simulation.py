@@ -98,6 +98,7 @@ NANOSECONDS = 1_000_000_000
 # ROS tools treat as "latest"; the run is still fully deterministic.
 EPOCH_NS = 1_700_000_000 * NANOSECONDS
 SETTLE_TIME = 0.3
+RIGID_TIMESTEP = 0.002  # seconds: a rigid robot's physics step
 _DEFAULTS = FusionConfig()
 # camera_link (x forward, z up) -> optical frame (z forward, x right, y down), REP-103.
 LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -150,7 +151,8 @@ class SimConfig:
     depth_noise: DepthNoise = field(default_factory=DepthNoise)
     robot: RobotSpec = field(default_factory=RobotSpec)
     depth_backend: DepthBackend = DepthBackend.AUTO
-    timestep: float = 0.002
+    # Physics step, seconds; None: the robot's (`physics_step`).
+    timestep: float | None = None
     state_rate: float = 50.0  # odometry, true pose and contact checks, Hz
     min_obstacle_height: float = _DEFAULTS.min_obstacle_height
     max_obstacle_height: float = _DEFAULTS.max_obstacle_height
@@ -163,7 +165,7 @@ class SimConfig:
         if self.depth_rate is not None and not 0.0 < self.depth_rate <= 1000.0:
             msg = f'depth_rate {self.depth_rate} Hz must be in (0, 1000]; 0 would record no images'
             raise SimError(msg)
-        if not 0.0 < self.timestep <= 0.01:
+        if self.timestep is not None and not 0.0 < self.timestep <= 0.01:
             msg = f'timestep {self.timestep} s must be in (0, 0.01] for stable wheel contacts'
             raise SimError(msg)
         for name in ('depth_latency', 'depth_phase', 'lidar_phase'):
@@ -183,6 +185,15 @@ class SimConfig:
         if not 0.0 <= self.sensor_stagger < 1.0:
             msg = f'sensor_stagger {self.sensor_stagger} must be in [0, 1) of a period'
             raise SimError(msg)
+
+    @property
+    def physics_step(self) -> float:
+        """The physics step, seconds: `timestep`, else the robot's: a sprung robot's
+        (`Suspension.timestep`) or `RIGID_TIMESTEP`."""
+        if self.timestep is not None:
+            return self.timestep
+        spring = self.robot.suspension
+        return RIGID_TIMESTEP if spring is None else spring.timestep
 
 
 def fusion_config(config: SimConfig, base: FusionConfig | None = None) -> FusionConfig:
@@ -497,12 +508,13 @@ def build_mjcf(world: World, robot: RobotSpec, config: SimConfig) -> str:
         )
     # The camera belongs to the body that carries the sensors, not to a wheel.
     body = robot.mjcf(world.start, camera_xml)
+    step = config.physics_step
     # Friction as stiff as the contact (elliptic cones, impratio 10): MuJoCo's default soft
     # friction lets a wheel creep under any traction, so the robot's wheels slipped 20 % of
     # the way up a 1:8 ramp where rubber (friction 1, 0.125 needed) holds.
     return f"""<mujoco model="scanfuse_{world.name}">
 <compiler angle="radian"/>
-<option timestep="{config.timestep:.6g}" integrator="implicitfast" cone="elliptic" impratio="10"/>
+<option timestep="{step:.6g}" integrator="implicitfast" cone="elliptic" impratio="10"/>
 <visual><global offwidth="{width}" offheight="{height}"/><map znear="0.01" zfar="50"/></visual>
 <asset>{''.join(world.all_assets())}</asset>
 <worldbody>
@@ -587,7 +599,7 @@ class Simulation:
             (RayFan(directions[chunk], cutoff=cutoff), chunk) for chunk in beams if chunk.size
         ]
         self._step = 0  # physics steps since time zero
-        self._step_ns = round(config.timestep * NANOSECONDS)
+        self._step_ns = round(config.physics_step * NANOSECONDS)
         rays, self._z_of_ray = optical_rays(self.camera)
         self._depth_fan = RayFan(
             rays, cutoff=self.camera_profile.range_max / float(self._z_of_ray.min()) + 0.1
@@ -658,7 +670,7 @@ class Simulation:
 
     @property
     def time(self) -> float:
-        return self._step * self.config.timestep
+        return self._step * self.config.physics_step
 
     @property
     def stamp_ns(self) -> int:
@@ -923,7 +935,7 @@ class Simulation:
     def _settle(self) -> None:
         """Let the robot sink onto its wheels, then restart the clock and the odometry."""
         mujoco.mj_forward(self.model, self.data)
-        mujoco.mj_step(self.model, self.data, nstep=round(SETTLE_TIME / self.config.timestep))
+        mujoco.mj_step(self.model, self.data, nstep=round(SETTLE_TIME / self.config.physics_step))
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)
         self.data.time = 0.0
@@ -940,7 +952,7 @@ class Simulation:
 
     def advance(self, until: float) -> None:
         """Step the physics to time `until` (seconds, up to the next step), integrating odometry."""
-        self.advance_to_step(math.ceil(until / self.config.timestep - 1e-6))
+        self.advance_to_step(math.ceil(until / self.config.physics_step - 1e-6))
 
     def advance_to_step(self, step: int) -> None:
         """Step the physics until `step` steps have passed since time zero."""
@@ -953,7 +965,7 @@ class Simulation:
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_camlight(self.model, self.data)
             self._step = step
-            self._update_odometry(steps * self.config.timestep)
+            self._update_odometry(steps * self.config.physics_step)
 
     def run(
         self,
@@ -974,7 +986,7 @@ class Simulation:
         if not duration > 0.0:
             msg = f'duration must be positive, got {duration} s'
             raise SimError(msg)
-        dt = self.config.timestep
+        dt = self.config.physics_step
         start = self._step
         end = start + math.floor(duration / dt + 1e-6)
         report = progress or NullProgress()
