@@ -298,7 +298,7 @@ def amr_section(result: EvaluationResult) -> list[str]:
 TERRAIN_NOTE = (
     'Terrain trials (`--worlds terrain`, evaluate/terrain_trials.py), driven by the `sprung` '
     'robot: its body sits on a pitch spring over sprung drive wheels, so it pitches about '
-    "2 degrees braking hard and setting off, and rocks over a ramp's foot and crest; its "
+    "3 degrees braking hard and setting off, and rocks over a ramp's foot and crest; its "
     "IMU (100 Hz) gives each trial's peak pitch. Families (seeded variants): "
     '`terrain-ramp-12` and `terrain-ramp-8`, up a 1:12 (1:8) ramp 1.2 m wide to a platform '
     '0.15 m high and down again between walls, past low boxes (6-12 cm above the ground under '

@@ -2,7 +2,7 @@
 before a low box, and a camera mounted otherwise than its parameters say.
 
 Every trial drives the `sprung` robot (`scanfuse.sim.robot.SPRUNG`: its body pitches about
-2 degrees braking hard, as much setting off, and rocks over a ramp's foot and crest), with
+3 degrees braking hard, as much setting off, and rocks over a ramp's foot and crest), with
 an IMU on /imu. Families, each with seeded variants (box heights 6-12 cm above the ground
 under them, shifts of a few centimetres, `worlds.ramp_world`):
 
