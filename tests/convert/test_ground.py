@@ -186,6 +186,23 @@ def test_while_no_floor_is_found_the_learnt_tilt_fades_back_to_the_prior():
     assert tracker.counts.fell_back == 7
 
 
+def test_with_an_imu_while_no_floor_is_found_the_estimate_is_the_plane_the_wheels_stand_on():
+    # Turned across a 1:8 ramp (7.1 degrees), facing its side wall: the IMU's level floor is
+    # rolled 7.1 degrees from the ramp the robot stands on, which is the floor around it.
+    level = GroundPlane.of_mounting(optical_pose(body_roll=math.degrees(math.atan(1 / 8))))
+    wheels = GroundPlane.of_mounting(optical_pose())
+    floor = millimetres(box_depth(CAMERA, optical_pose(), [BOX]))
+    tracker = GroundTracker(GroundSettings())
+    found = tracker.update(floor, CAMERA, level, wheels)
+    assert math.degrees(found.tilt_from(wheels)) < 0.1
+    blank = np.zeros_like(floor)
+    for _ in range(3):
+        held = tracker.update(blank, CAMERA, level, wheels)
+        assert math.degrees(held.tilt_from(wheels)) < 1e-6
+        assert held.offset == pytest.approx(wheels.offset, abs=1e-9)
+    assert tracker.counts.fell_back == 3
+
+
 def test_a_platform_as_wide_as_the_view_is_not_taken_for_the_floor():
     # A 6 cm platform from 0.8 m on fills most of the view: its top is a plane within the
     # bounds (6 cm above the floor) with more points than the floor, but the floor lies below

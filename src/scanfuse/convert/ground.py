@@ -28,8 +28,9 @@ the camera's optical frame, with the mounting's plane as the prior:
   bounds again;
 - too few inliers (fewer than `min_points`) or inliers along a line (their spread across
   either in-plane axis below `min_spread`: a strip of floor under a wall fixes only one
-  tilt) make the frame fall back, counted: what was learnt fades towards the prior
-  (`FALLBACK_FADE` a frame), not held for good;
+  tilt) make the frame fall back, counted: with an IMU (the prior then the level floor)
+  the estimate is the plane the wheels stand on (`base`: on a ramp, the ramp); without,
+  what was learnt fades towards the prior (`FALLBACK_FADE` a frame), not held for good;
 - the estimate's offset from the prior is smoothed over frames (`smoothing`: the weight of
   the new frame), so a prior that moves (an IMU's tilt) carries the learnt error along;
 - ground that leaves the plane ahead within `max_slope` (a ramp; with an IMU, `max_slope`
@@ -614,7 +615,13 @@ class GroundTracker:
         if found is None:
             self.counts.fell_back += 1
             self.counts.last_reason = reason
-            if self._correction is not None:
+            if base is not None:
+                # With an IMU the prior is the level floor, which on a ramp is not the floor
+                # around the robot: the plane its wheels stand on is. Turning on a 1:8 ramp to
+                # face its side wall, the floor the estimate fell back to rose 7 degrees
+                # uphill across the view, and the ramp stood in the slab 0.6 m out.
+                self._correction = _correction_between(prior, base)
+            elif self._correction is not None:
                 # What was learnt fades towards the prior while no floor is found: a plane
                 # held from before a ramp's foot (tilted part way up it) is not kept for good.
                 turn, lift = self._correction
