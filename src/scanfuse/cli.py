@@ -453,6 +453,14 @@ def evaluate(
         ),
     ] = None,
     trials: Annotated[int | None, typer.Option(help='seeded clutter worlds (closed loop)')] = None,
+    terrain_trials: Annotated[
+        int | None,
+        typer.Option(
+            '--terrain-trials',
+            help='seeded variants of each terrain family (default 5; 1 with --quick): more '
+            'narrow the spread of the terrain numbers',
+        ),
+    ] = None,
     jobs: Annotated[
         int, typer.Option('--jobs', help='trials run in parallel processes (results as serial)')
     ] = 1,
@@ -511,6 +519,7 @@ def evaluate(
         quick=quick,
         worlds=worlds,
         trials=trials,
+        terrain_trials=terrain_trials,
         console=Console(),
         jobs=jobs,
         params=params,

@@ -9,10 +9,12 @@ import yaml
 
 from scanfuse.cli import main
 from scanfuse.config import FusionConfig
+from scanfuse.evaluate.cli import settings_of
 from scanfuse.evaluate.closed_loop import TURNING_TRIALS
 from scanfuse.evaluate.mapping import GridSpec, OccupancyGrid, compare_maps, rasterize_footprints
 from scanfuse.evaluate.methods import METHODS
 from scanfuse.evaluate.runner import Evaluation, EvaluationSettings, base_config, make_simulation
+from scanfuse.evaluate.terrain_trials import TERRAIN_FAMILIES
 from scanfuse.sim.errors import SimError
 from scanfuse.sim.sensors import camera_profile
 
@@ -100,6 +102,22 @@ def test_evaluate_params_changes_what_the_run_used(tmp_path):
     assert (used.camera_pitch, used.obstacle_min_points) == (0.45, 5)
     recorded = yaml.safe_load((out / 'evaluation.yaml').read_text(encoding='utf-8'))
     assert recorded['params'] == {'camera_pitch': 0.45, 'obstacle_min_points': 5}
+
+
+def test_terrain_trials_sets_the_seeded_variants_of_every_terrain_family():
+    settings = settings_of(quick=False, worlds='terrain', trials=0, terrain_trials=10)
+    specs = Evaluation(settings).terrain_specs
+    assert len(specs) == 10 * len(TERRAIN_FAMILIES)
+    assert sorted({spec.seed for spec in specs}) == list(range(10))
+    # Without the option: the full run's 5, the quick run's 1.
+    assert settings_of(quick=False).terrain_trials == 5
+    assert settings_of(quick=True).terrain_trials == 1
+
+
+def test_fewer_than_one_terrain_trial_is_refused_before_any_work(tmp_path, capsys):
+    assert main(['evaluate', '--out', str(tmp_path / 'e'), '--terrain-trials', '0']) == 1
+    assert '--terrain-trials must be 1 or more, got 0' in capsys.readouterr().err
+    assert not (tmp_path / 'e').exists()
 
 
 def test_evaluate_params_errors_are_one_line(tmp_path, capsys):

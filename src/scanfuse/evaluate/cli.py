@@ -85,6 +85,36 @@ def with_scored(settings: EvaluationSettings, names: Sequence[str]) -> Evaluatio
     )
 
 
+def settings_of(
+    *,
+    quick: bool,
+    worlds: str | None = None,
+    trials: int | None = None,
+    terrain_trials: int | None = None,
+    params: Path | None = None,
+    scored: Sequence[str] = (),
+) -> EvaluationSettings:
+    """The evaluation `scanfuse evaluate`'s options ask for (ConfigError on a wrong one)."""
+    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
+
+    changes: dict[str, object] = {}
+    if params is not None:
+        changes['params'] = parameters_of(params)
+    names = parse_worlds(worlds)
+    if names is not None:
+        changes['worlds'] = names
+    for option, value, least in (('--trials', trials, 0), ('--terrain-trials', terrain_trials, 1)):
+        if value is not None and value < least:
+            msg = f'{option} must be {least} or more, got {value}'
+            raise ConfigError(msg)
+    if trials is not None:
+        changes['trials'] = trials
+    if terrain_trials is not None:
+        changes['terrain_trials'] = terrain_trials
+    make = EvaluationSettings.quick if quick else EvaluationSettings
+    return with_scored(make(**changes), scored)  # type: ignore[arg-type]
+
+
 def run_evaluate(
     out: Path,
     *,
@@ -92,6 +122,7 @@ def run_evaluate(
     worlds: str | None,
     trials: int | None,
     console: Console,
+    terrain_trials: int | None = None,
     jobs: int = 1,
     params: Path | None = None,
     cluster: str | None = None,
@@ -107,24 +138,18 @@ def run_evaluate(
     # Depth through mujoco.Renderer where a headless GL works (before MuJoCo's import).
     choose_headless_gl()
     from scanfuse.evaluate.report import amr_table, table, terrain_table  # noqa: PLC0415
-    from scanfuse.evaluate.runner import EvaluationSettings  # noqa: PLC0415
     from scanfuse.evaluate.write import run_evaluation  # noqa: PLC0415
 
     check_output_folder(out)
-    changes: dict[str, object] = {}
-    if params is not None:
-        changes['params'] = parameters_of(params)
-    names = parse_worlds(worlds)
-    if names is not None:
-        changes['worlds'] = names
-    if trials is not None:
-        if trials < 0:
-            msg = f'--trials must be zero or more, got {trials}'
-            raise ConfigError(msg)
-        changes['trials'] = trials
-    make = EvaluationSettings.quick if quick else EvaluationSettings
     backend = backend_of(jobs, cluster, max_retries)
-    settings = with_scored(make(**changes), scored)  # type: ignore[arg-type]
+    settings = settings_of(
+        quick=quick,
+        worlds=worlds,
+        trials=trials,
+        terrain_trials=terrain_trials,
+        params=params,
+        scored=scored,
+    )
     if sweeps:
         return _run_sweep(out, settings, sweeps, backend, console)
     result = run_evaluation(out, settings, RichProgress(console), backend=backend)
