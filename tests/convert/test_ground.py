@@ -712,6 +712,32 @@ def test_from_a_ramp_the_platform_and_the_ramp_down_past_its_top_are_floor_with_
     assert false_share(crest_scan(depth, imu=False)) > 0.1
 
 
+# The ramp's top and the platform's end, metres ahead: the end near enough that the ramp
+# down past it is seen, at a grazing angle.
+NEAR_ENDS = {
+    'end 1.8 m ahead': (0.8, 1.8),
+    'end 1.9 m ahead': (0.9, 1.9),
+    'end 2.0 m ahead': (1.0, 2.0),
+}
+
+
+@pytest.mark.parametrize(('crest', 'edge'), NEAR_ENDS.values(), ids=NEAR_ENDS.keys())
+def test_from_a_ramp_the_ramp_down_seen_past_a_near_platform_is_no_drop_ahead(crest, edge):
+    # From 0.3 m above the platform a line of sight over its end falls 9-10 degrees, the
+    # ramp down 7.1 above level: that ramp is seen at 2-3 degrees, the image rows sampled
+    # 0.4-0.7 m apart on it. Its ground falls across the bins between them at up to the
+    # steepest floor's fall, and the lowest the ground may be within a bin is at most the
+    # next one's: a line of sight grazing one bin's single height met it early, 4 cm above
+    # the ramp, and the ramp was a drop (13-79 % of the slots in view).
+    scan = crest_scan(crest_depth(crest, edge), imu=True)
+    angles = scan.angle_min + np.arange(scan.ranges.size) * scan.angle_increment
+    ahead = np.abs(angles) <= math.radians(15.0)
+    assert np.all(np.isinf(scan.ranges[ahead]))
+    # Farther out to the sides, where the bins' radial distances cross the platform's end
+    # obliquely, some slots still read a drop there.
+    assert false_share(scan) <= 0.15
+
+
 def test_from_a_ramp_a_ledge_past_the_platform_is_still_a_drop_with_an_imu():
     scan = crest_scan(crest_depth(0.6, 1.2, ledge=0.4), imu=True)
     ahead = scan.ranges[READINGS // 2 - 2 : READINGS // 2 + 3]

@@ -405,9 +405,10 @@ def _profile(
     are walked outwards from the camera's foot, where the ground is the plane (height 0). A
     bin's ground is the mean height of its points that may be ground (`_candidate`: within
     the steepest floor's rise or fall over run and their noise of the last ground, run their
-    horizontal distance from it), clamped to that over min(run, bin_size): the profile never
-    rises or falls faster than the steepest floor, however the points creep (an obstacle's
-    face, a step, a drop are not ground). In a bin where many points stand clearly above any
+    horizontal distance from it), clamped to that over min(run, bin_size) (over run, for a
+    ramp already seen falling: below): the profile never rises or falls faster than the
+    steepest floor, however the points creep (an obstacle's face, a step, a drop are not
+    ground). In a bin where many points stand clearly above any
     floor's rise (an obstacle's face) it does not rise to the face's foot: it goes on at its
     last rise where the column's ground already stood off the plane for RAMP_BINS bins (a
     ramp's, under a box on it), else it is held; it does not fall in one where many stand
@@ -433,7 +434,10 @@ def _profile(
     `low` is the lowest the ground may be, what a drop is measured below: the profile where
     a column saw ground (or took a neighbour's), and beyond, where it saw none (behind a
     crest, past the view's reach), the last ground seen falling at the steepest floor's
-    fall: a down ramp hidden behind its top is no drop, a ledge's far floor is.
+    fall: a down ramp hidden behind its top is no drop, a ledge's far floor is. Each bin's
+    `low` is also at most the next bin's where that bin's ground was seen, and the last
+    bin's, seen, is its fall over a bin lower (a line of sight meets a bin's one height
+    early where it grazes the ground).
     """
     bins = profile.shape[1]
     count = rows.size
@@ -533,8 +537,11 @@ def _profile(
                 bottom = ground if below >= max(2, found // 4) else ground - down * step
                 if bottom < ground and streak >= RAMP_BINS and trend < 0.0:
                     # Across bins no row of the image fell in (a ramp down seen at a grazing
-                    # angle), a ramp already seen falling goes on at its last fall.
-                    bottom += max(trend, -down) * max(centre - at - bin_size, 0.0)
+                    # angle, 2-3 bins between two rows), a ramp already seen falling may have
+                    # gone on falling at the steepest floor's fall (`low` bounds the bins
+                    # between so). At its last fall (a platform's end makes it less than the
+                    # ramp's), the ramp's next row was 3-7 cm below the ground there: a drop.
+                    bottom = ground - down * max(centre - at, 0.0)
                 last = ground
                 ground = min(max(total / found, bottom), top)
                 if centre > at:
@@ -583,6 +590,16 @@ def _profile(
                 low[c, b] = last
             else:
                 low[c, b] = min(profile[c, b], last - falls[c] * (centre - last_at))
+        # A bin's ground stands for the whole bin, and a line of sight grazing the ground
+        # meets it early: over a ramp down, 4 cm above the ground at the bin's far end, and
+        # the ramp beyond was a drop. Where the next bin's ground was seen lower, the ground
+        # may be as low in this one; in the last bin, seen, as low as it falls on to.
+        used = min(bins, low.shape[1])
+        for b in range(used):
+            if b + 1 < used and known[c, b + 1]:
+                low[c, b] = min(low[c, b], low[c, b + 1])
+            elif b + 1 == used and known[c, b]:
+                low[c, b] -= falls[c] * bin_size
 
 
 def _crossings(
