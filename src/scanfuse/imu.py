@@ -17,11 +17,17 @@ import functools
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scanfuse.errors import InputError
 from scanfuse.transforms import Transform
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    F64 = npt.NDArray[np.float64]
 
 # Orientations whose quaternion's norm is this far from 1 are refused (a driver's float
 # rounding is far less; a zero quaternion is REP-145's "no orientation").
@@ -34,6 +40,10 @@ MAX_AGE_NS = 50_000_000
 AVERAGE_NS = 20_000_000
 # Tilts beyond this are no floor a robot drives on: the orientation is refused.
 MAX_TILT = math.radians(45.0)
+# A LiDAR's sweep is given the IMU's tilt at this many stamps across it (`tilts_over`), each
+# beam's interpolated between: a sprung body rocks 2-5 degrees within one 0.1 s sweep of a
+# 10 Hz LiDAR (the simulator's, over a ramp's foot and crest and setting off on one).
+SWEEP_SAMPLES = 9
 
 
 @dataclass(frozen=True)
@@ -97,7 +107,30 @@ class ImuHistory:
         none is within MAX_AGE_NS (no IMU, or it stopped)."""
         if not self._samples:
             return None
+        angles = self._roll_pitch_at([sample.stamp_ns for sample in self._samples], stamp_ns)
+        return None if angles is None else Transform.from_rpy(*angles, 0.0)
+
+    def tilts_over(self, stamps_ns: npt.NDArray[np.int64]) -> F64 | None:
+        """The base's tilt (N x 3 x 3: base to a level frame of its heading, as `tilt_at`'s)
+        at each of `stamps_ns` (the beams of one LiDAR sweep): `tilt_at`'s roll and pitch at
+        `SWEEP_SAMPLES` stamps across them, interpolated between; None when one of those has
+        no sample within MAX_AGE_NS."""
+        if not self._samples or not stamps_ns.size:
+            return None
         stamps = [sample.stamp_ns for sample in self._samples]
+        first, last = int(stamps_ns.min()), int(stamps_ns.max())
+        at = np.linspace(first, last, SWEEP_SAMPLES if last > first else 1)
+        angles = [self._roll_pitch_at(stamps, round(float(t))) for t in at]
+        if any(a is None for a in angles):
+            return None
+        roll_pitch = np.array(angles, dtype=np.float64)
+        times = stamps_ns.astype(np.float64)
+        roll = np.interp(times, at, roll_pitch[:, 0])
+        pitch = np.interp(times, at, roll_pitch[:, 1])
+        return tilt_matrices(roll, pitch)
+
+    def _roll_pitch_at(self, stamps: list[int], stamp_ns: int) -> tuple[float, float] | None:
+        """`tilt_at`'s roll and pitch (radians); `stamps` the samples' stamps."""
         index = bisect.bisect_left(stamps, stamp_ns)
         nearest = min(
             (i for i in (index - 1, index) if 0 <= i < len(stamps)),
@@ -112,4 +145,12 @@ class ImuHistory:
         ]
         roll = sum(angles[0] for angles in near) / len(near)
         pitch = sum(angles[1] for angles in near) / len(near)
-        return Transform.from_rpy(roll, pitch, 0.0)
+        return roll, pitch
+
+
+def tilt_matrices(roll: F64, pitch: F64) -> F64:
+    """N rotations (N x 3 x 3) of `Transform.from_rpy(roll, pitch, 0)`: Ry(pitch) Rx(roll)."""
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    zero = np.zeros_like(roll)
+    rows = [[cp, sp * sr, sp * cr], [zero, cr, -sr], [-sp, cp * sr, cp * cr]]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)

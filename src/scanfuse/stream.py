@@ -84,7 +84,7 @@ from scanfuse.output import (
     within_limits,
 )
 from scanfuse.pipeline import StageTimings
-from scanfuse.scan import check_scan_limits, full_circle, normalized_ranges
+from scanfuse.scan import TWO_PI, check_scan_limits, full_circle, normalized_ranges
 from scanfuse.scan_matching import DriftCorrection
 from scanfuse.seen_ground import on_seen_ground
 from scanfuse.trail import GroundTrail
@@ -849,7 +849,8 @@ class FusionStream(Generic[T]):
                 pending.token, pending.arrived_ns, seen, base_to_output,
                 lidar=clean, fused=fused, deskewed=deskewed,
             )  # fmt: skip
-        lidar = self._off_the_seen_ground(lidar, seen, base_to_output)
+        swept = scan if pending.base_to_output is None else None  # moved: its sweep is gone
+        lidar = self._off_the_seen_ground(lidar, seen, base_to_output, swept)
         return self._assemble(
             pending.token, pending.arrived_ns, seen, base_to_output,
             lidar=lidar, fused=lidar, deskewed=deskewed,
@@ -1279,6 +1280,20 @@ class FusionStream(Generic[T]):
         """`scan` de-skewed, without the readings on the ground driven over (`trail`)."""
         return self._off_the_trail(self._deskew(scan)[0], advance=False)
 
+    def _beam_tilts(self, scan: Scan, in_base: F64 | None = None) -> F64 | None:
+        """The base's tilt when each beam of `scan` (a LiDAR's, on its own grid) was measured
+        (N x 3 x 3, `ImuHistory.tilts_over`), or with `in_base` (N points, base frame) when the
+        beam through each point was; None without an IMU across the sweep or the sweep's
+        timing (then the tilt at the scan's stamp stands for every beam)."""
+        if not len(self.imu):
+            return None
+        bearings = None
+        if in_base is not None:
+            local = self.base_to_laser(scan.frame_id).inverse().apply(in_base)
+            bearings = np.arctan2(local[:, 1], local[:, 0])
+        stamps = beam_stamps(scan, bearings)
+        return None if stamps is None else self.imu.tilts_over(stamps)
+
     def _off_the_trail(self, scan: Scan, *, advance: bool) -> Scan:
         """`scan` (a LiDAR's, de-skewed) with its readings on the ground the robot drove
         over dropped (NaN; `scanfuse.trail`); `advance`: the first LiDAR's scan, which moves
@@ -1297,7 +1312,10 @@ class FusionStream(Generic[T]):
         if not valid.any():
             return scan
         points = self.base_to_laser(scan.frame_id).apply(lidar_points(scan, valid))
-        on_ground = trail.on_ground(points, at.pose, rotation)
+        beams = self._beam_tilts(scan)
+        on_ground = trail.on_ground(
+            points, at.pose, rotation, None if beams is None else beams[valid]
+        )
         if not on_ground.any():
             return scan
         self.counts.lidar_on_ground += int(on_ground.sum())
@@ -1306,27 +1324,37 @@ class FusionStream(Generic[T]):
         return scan.with_ranges(kept)
 
     def _off_the_seen_ground(
-        self, lidar: Scan, seen: list[_Seen], base_to_output: Transform
+        self, lidar: Scan, seen: list[_Seen], base_to_output: Transform, swept: Scan | None
     ) -> Scan:
         """`lidar` (in the output frame, at `base_to_output` on the base) without the readings
         that lie on the ground a paired camera sees in its frame, below its slab (NaN;
         `scanfuse.seen_ground`): a tilted LiDAR's plane meeting the floor. The frame is taken
         at the scan's stamp: within max_time_offset the robot moves a few centimetres, and the
-        floor's height changes by a fraction of that."""
+        floor's height changes by a fraction of that. Its tilt is not taken as the same: with
+        an IMU, each reading is turned from the base's tilt when its beam was measured (in
+        `swept`, the LiDAR's own scan; None: at the scan's stamp) to the tilt at the frame's
+        stamp. A sprung body pitching 20-50 degrees a second, a frame 30 ms off a beam
+        puts a reading 2 m out 2-5 cm off the floor the camera saw."""
         if self.config.method is not Method.OBSTACLE:
             return lidar
         valid = lidar_readings(lidar)
         if not valid.any():
             return lidar
         in_base = base_to_output.apply(lidar_points(lidar, valid))
+        beams = None if swept is None else self._beam_tilts(swept, in_base)
+        level = None if beams is None else np.einsum('nij,nj->ni', beams, in_base)
         on_ground = np.zeros(int(valid.sum()), dtype=np.bool_)
         for camera in seen:
             frame, extrinsics, mount = camera.frame, camera.extrinsics, camera.mount
             if camera.reason is not None or frame is None or extrinsics is None or mount is None:
                 continue
             own = camera.feed.config
+            points = in_base
+            tilt = None if level is None else self.imu.tilt_at(frame.stamp_ns)
+            if level is not None and tilt is not None:
+                points = level @ tilt.rotation_matrix  # on the base as tilted at the frame
             on_ground |= on_seen_ground(
-                mount.inverse().apply(in_base),
+                mount.inverse().apply(points),
                 frame.depth,
                 frame.camera,
                 GroundPlane.of_mounting(extrinsics.base_to_camera_optical),
@@ -1743,6 +1771,25 @@ class FusionStream(Generic[T]):
         if key not in self._warned:
             self._warned.add(key)
             logger.warning(message)
+
+
+def beam_stamps(scan: Scan, bearings: F64 | None = None) -> npt.NDArray[np.int64] | None:
+    """When each beam of `scan` (a LiDAR's, on its own grid) was measured: beam i at its
+    stamp plus i time_increment; with `bearings` (radians, the LiDAR's frame), the beam along
+    each. None when the scan gives no sweep (time_increment 0, or a sweep over a second, as
+    `_deskew` refuses it)."""
+    sweep_ns = scan.time_increment * (len(scan) - 1) * NANOSECONDS
+    if scan.time_increment == 0.0 or not math.isfinite(sweep_ns) or abs(sweep_ns) > NANOSECONDS:
+        return None
+    if bearings is None:
+        beams = np.arange(len(scan), dtype=np.float64)
+    else:
+        # Slots from angle_min the way the scan turns, as `scan_matching.levelled` bins them.
+        step, turn = abs(scan.angle_increment), math.copysign(1.0, scan.angle_increment)
+        along = np.mod(turn * (bearings - scan.angle_min) + step / 2, TWO_PI) - step / 2
+        beams = np.clip(np.round(along / step), 0, len(scan) - 1)
+    offsets = np.rint(beams * scan.time_increment * NANOSECONDS).astype(np.int64)
+    return scan.stamp_ns + offsets
 
 
 def _total_timings(timings: list[StageTimings]) -> StageTimings | None:

@@ -132,21 +132,26 @@ class GroundTrail:
             self._write(pose, tilt, self.settings.half_width, self._offsets)
             self._last_write = self._travelled
 
-    def on_ground(self, points: F64, pose: PlanarPose, tilt: F64) -> npt.NDArray[np.bool_]:
+    def on_ground(
+        self, points: F64, pose: PlanarPose, tilt: F64, beams: F64 | None = None
+    ) -> npt.NDArray[np.bool_]:
         """Which of `points` (N x 3, base frame, of the base at `pose` tilted by `tilt`)
-        lie within `tolerance` of the ground of a cell the trail knows."""
+        lie within `tolerance` of the ground of a cell the trail knows. `beams` (N x 3 x 3),
+        when given, is the base's tilt when each point was measured (`ImuHistory.tilts_over`:
+        a LiDAR's sweep takes a tenth of a second, in which a sprung body rocks degrees)."""
         settings = self.settings
         if self._pose is None or not points.size:
             return np.zeros(len(points), dtype=np.bool_)
         found = np.zeros(len(points), dtype=np.bool_)
+        level = points @ tilt.T if beams is None else np.einsum('nij,nj->ni', beams, points)
         # Only points at a height some cell's ground has can lie on it (a LiDAR's points
         # stand its height above the base: on a level floor, none).
-        z = self._height + self._climb(pose, tilt, self._pose) + points @ tilt[2]
+        z = self._height + self._climb(pose, tilt, self._pose) + level[:, 2]
         reach = settings.tolerance + settings.max_drift
         near = np.flatnonzero((z >= self._lowest - reach) & (z <= self._highest + reach))
         if not near.size:
             return found
-        level = points[near] @ tilt.T
+        level = level[near]
         z = z[near]
         cosine, sine = math.cos(pose.yaw), math.sin(pose.yaw)
         x = pose.x + cosine * level[:, 0] - sine * level[:, 1]
