@@ -22,9 +22,10 @@ from scanfuse.config import FusionConfig
 from scanfuse.imu import ImuHistory, tilt_matrices
 from scanfuse.motion import PlanarPose
 from scanfuse.scan import Scan
+from scanfuse.scan_matching import levelled
 from scanfuse.stream import FusionStream, beam_stamps
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
-from tests.support.render import depth_image, tilted_room_ranges
+from tests.support.render import depth_image, square_room_ranges, tilted_room_ranges
 from tests.test_trail import HALF_WIDTH, LIDAR_HEIGHT, SLOPE, driven_trail, height_at, path
 
 NS = 1_000_000_000
@@ -241,3 +242,39 @@ def test_a_body_pitching_within_the_sweep_has_its_floor_ahead_dropped_beam_by_be
         # 2.5 degrees further meets the floor 2 m out some 9 cm nearer than that tilt puts the
         # floor, which stands it above the slab's bottom: kept, a false wall.
         assert kept.mean() > 0.9
+
+
+# ---------------------------------------------------------------- scan matching
+
+
+def test_a_rocking_body_s_scan_levelled_beam_by_beam_keeps_only_the_walls():
+    # The room of walls at +-3 m; the body pitches nose down from 3 to 9 degrees across the
+    # sweep, so the beams ahead (half-way through it, at 6) meet the floor 2.9 m out.
+    pitch = pitch_over(math.radians(3.0), math.radians(9.0), STAMP)
+    angles = sweep_scan(0, np.ones(READINGS)).angles()
+    tilts = np.stack(
+        [Transform.from_rpy(0.0, pitch(t), 0.0).rotation_matrix for t in beam_times(STAMP)]
+    )
+    ranges = np.array(
+        [
+            tilted_room_ranges((0.0, 0.0, 0.0), tilt, np.array([a]), height=LIDAR_HEIGHT, half=3.0)[
+                0
+            ]
+            for a, tilt in zip(angles, tilts, strict=True)
+        ]
+    )
+    scan = sweep_scan(STAMP, ranges)
+    laser = Transform.from_rpy(0.0, 0.0, 0.0, (0.0, 0.0, LIDAR_HEIGHT))
+    walls = square_room_ranges((0.0, 0.0), 0.0, angles, half=3.0)
+    # A kept reading lands in the slot of its horizontal bearing: half a slot off at most,
+    # worth 3 sin(a) / cos(a)^2 m a radian on a wall 3 m off, 4.2 m a radian at a corner.
+    slack = 3.0 * math.sin(math.pi / 4) / math.cos(math.pi / 4) ** 2 * scan.angle_increment / 2
+    level = levelled(scan, tilts, laser)
+    kept = np.isfinite(level.ranges)
+    assert kept.sum() > READINGS / 2
+    np.testing.assert_allclose(level.ranges[kept], walls[kept], atol=slack)
+    # Levelled with the stamp's tilt alone, the floor the beams ahead met 3 degrees further
+    # pitched stands 15 cm up: kept, as a wall short of the real ones.
+    at_stamp = levelled(scan, tilts[0], laser)
+    short = np.isfinite(at_stamp.ranges) & (at_stamp.ranges < walls - 0.1)
+    assert short.sum() >= 20

@@ -187,15 +187,16 @@ LEVELLED_FLOOR = 0.05
 
 def levelled(scan: Scan, tilt: F64, base_to_laser: Transform) -> Scan:
     """`scan`, taken with the base tilted by `tilt` (3x3: the base's axes in a level frame of
-    the same heading, an IMU's roll and pitch), as a level LiDAR at `base_to_laser` would
-    have it: each reading's point placed in the level frame, readings lower than
-    `LEVELLED_FLOOR` above the base's origin left out (the floor), the rest put in the slot
-    of their horizontal bearing, the nearest per slot. Upright walls stay where they are: a
-    tilted plane slices them at other heights, and makes them longer along the tilt."""
+    the same heading, an IMU's roll and pitch; or N x 3 x 3, one per reading: the tilt when
+    its beam was measured), as a level LiDAR at `base_to_laser` would have it: each
+    reading's point placed in the level frame, readings lower than `LEVELLED_FLOOR` above
+    the base's origin left out (the floor), the rest put in the slot of their horizontal
+    bearing, the nearest per slot. Upright walls stay where they are: a tilted plane slices
+    them at other heights, and makes them longer along the tilt."""
     x, y = points(scan)
     sensor = base_to_laser.matrix
     p = sensor[:3, :3] @ np.vstack([x, y, np.zeros_like(x)]) + sensor[:3, 3:4]
-    level = tilt @ p
+    level = tilt @ p if tilt.ndim == 2 else np.einsum('nij,jn->in', tilt, p)
     # Back into the level sensor's frame: its mounting's heading, at its mounted place.
     yaw = math.atan2(sensor[1, 0], sensor[0, 0])
     cos, sin = math.cos(yaw), math.sin(yaw)
@@ -576,9 +577,9 @@ class DriftCorrection:
     ) -> Match | None:
         """Take the LiDAR `scan` (every beam at its stamp) with the base's odometry pose
         `base` at that stamp and its plane's `tilt` from level (radians; 0: level or
-        unknown); `base_tilt`, the base's roll and pitch (`levelled`), lets a plane tilted
-        beyond `max_tilt` be matched levelled. Returns the match (None: the first scan, a
-        reference)."""
+        unknown); `base_tilt`, the base's roll and pitch (`levelled`: one, or one per
+        reading), lets a plane tilted beyond `max_tilt` be matched levelled. Returns the
+        match (None: the first scan, a reference)."""
         if not base.is_finite():
             msg = f'drift correction needs a finite odometry pose, got {base}'
             raise InputError(msg)

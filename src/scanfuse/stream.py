@@ -830,9 +830,11 @@ class FusionStream(Generic[T]):
 
     def _resolve(self, pending: _Pending[T]) -> StreamOutput[T]:
         scan = pending.scan
+        swept = None  # the LiDAR's scan as its sweep measured it (None: moved to a stamp)
         if pending.base_to_output is not None:  # moved to a fixed rate's stamp already
             lidar, deskewed, base_to_output = scan, False, pending.base_to_output
         else:
+            swept = scan
             lidar, deskewed = self._deskew(scan)
             lidar, base_to_output = self._to_output(self._off_the_trail(lidar, advance=True))
         arrived = pending.arrived_ns
@@ -847,13 +849,12 @@ class FusionStream(Generic[T]):
             fused = clean if clean is not pending.scan or pending.assembled else None
             return self._assemble(
                 pending.token, pending.arrived_ns, seen, base_to_output,
-                lidar=clean, fused=fused, deskewed=deskewed,
+                lidar=clean, fused=fused, deskewed=deskewed, swept=swept,
             )  # fmt: skip
-        swept = scan if pending.base_to_output is None else None  # moved: its sweep is gone
         lidar = self._off_the_seen_ground(lidar, seen, base_to_output, swept)
         return self._assemble(
             pending.token, pending.arrived_ns, seen, base_to_output,
-            lidar=lidar, fused=lidar, deskewed=deskewed,
+            lidar=lidar, fused=lidar, deskewed=deskewed, swept=swept,
         )  # fmt: skip
 
     def _assemble(
@@ -867,10 +868,12 @@ class FusionStream(Generic[T]):
         fused: Scan | None,
         depth_scan: Scan | None = None,
         deskewed: bool = False,
+        swept: Scan | None = None,
     ) -> StreamOutput[T]:
         """The output: `fused` (None: `lidar`'s own bytes) with every camera that paired
         merged into it, then the other LiDARs and the clouds (`_with_sources`), then the
-        memory (`_remember`). `passed`: why a camera did not pair (the first such, in order)."""
+        memory (`_remember`). `passed`: why a camera did not pair (the first such, in order).
+        `swept`: the first LiDAR's scan as measured, whose sweep times its beams."""
         paired = [s for s in seen if s.reason is None]
         reason = next((s.reason for s in seen if s.reason is not None), None)
         if reason is not None:
@@ -898,7 +901,9 @@ class FusionStream(Generic[T]):
             deskewed=deskewed,
             timings=_total_timings([s.timings for s in paired if s.timings is not None]),
         )
-        output = self._remember(self._with_sources(output, base_to_output), paired, base_to_output)
+        output = self._remember(
+            self._with_sources(output, base_to_output), paired, base_to_output, swept
+        )
         return self._limited(output)
 
     def _limited(self, output: StreamOutput[T]) -> StreamOutput[T]:
@@ -1280,17 +1285,13 @@ class FusionStream(Generic[T]):
         """`scan` de-skewed, without the readings on the ground driven over (`trail`)."""
         return self._off_the_trail(self._deskew(scan)[0], advance=False)
 
-    def _beam_tilts(self, scan: Scan, in_base: F64 | None = None) -> F64 | None:
+    def _beam_tilts(self, scan: Scan, bearings: F64 | None = None) -> F64 | None:
         """The base's tilt when each beam of `scan` (a LiDAR's, on its own grid) was measured
-        (N x 3 x 3, `ImuHistory.tilts_over`), or with `in_base` (N points, base frame) when the
-        beam through each point was; None without an IMU across the sweep or the sweep's
+        (N x 3 x 3, `ImuHistory.tilts_over`), or with `bearings` (N, radians in its frame)
+        when the beam along each was; None without an IMU across the sweep or the sweep's
         timing (then the tilt at the scan's stamp stands for every beam)."""
         if not len(self.imu):
             return None
-        bearings = None
-        if in_base is not None:
-            local = self.base_to_laser(scan.frame_id).inverse().apply(in_base)
-            bearings = np.arctan2(local[:, 1], local[:, 0])
         stamps = beam_stamps(scan, bearings)
         return None if stamps is None else self.imu.tilts_over(stamps)
 
@@ -1341,7 +1342,10 @@ class FusionStream(Generic[T]):
         if not valid.any():
             return lidar
         in_base = base_to_output.apply(lidar_points(lidar, valid))
-        beams = None if swept is None else self._beam_tilts(swept, in_base)
+        beams = None
+        if swept is not None:
+            local = self.base_to_laser(swept.frame_id).inverse().apply(in_base)
+            beams = self._beam_tilts(swept, np.arctan2(local[:, 1], local[:, 0]))
         level = None if beams is None else np.einsum('nij,nj->ni', beams, in_base)
         on_ground = np.zeros(int(valid.sum()), dtype=np.bool_)
         for camera in seen:
@@ -1373,11 +1377,15 @@ class FusionStream(Generic[T]):
     # ------------------------------------------------------------ memory
 
     def _remember(
-        self, output: StreamOutput[T], paired: list[_Seen], base_to_output: Transform
+        self,
+        output: StreamOutput[T],
+        paired: list[_Seen],
+        base_to_output: Transform,
+        swept: Scan | None = None,
     ) -> StreamOutput[T]:
         """Clear, add, forget, and merge the remembered obstacles into `output` (in the
         output frame, which lies at `base_to_output` on the base); `paired`: the cameras
-        whose frames it took."""
+        whose frames it took; `swept`: the LiDAR's scan as measured (`_corrected`)."""
         memory = self.memory
         if memory is None or not len(self.odometry):
             return output
@@ -1391,7 +1399,7 @@ class FusionStream(Generic[T]):
         self._memory_segment = base.segment
         self._memory_placed_ns = scan.stamp_ns
         self._age_while_moving(memory, scan.stamp_ns, base.pose)
-        pose = self._corrected(scan, base.pose, base_to_output)
+        pose = self._corrected(scan, base.pose, base_to_output, swept)
         placement = Placement.of(pose, base_to_output)
         robot = (pose.x, pose.y)
         # Every camera forgets what it sees free (a rear camera behind a reversing robot)
@@ -1446,20 +1454,31 @@ class FusionStream(Generic[T]):
         fused = merge_scans(instant if instant is not None else output.lidar, remembered)
         return replace(output, fused=fused, instant=instant, memory_scan=remembered)
 
-    def _corrected(self, scan: Scan, base: PlanarPose, base_to_laser: Transform) -> PlanarPose:
+    def _corrected(
+        self, scan: Scan, base: PlanarPose, base_to_laser: Transform, swept: Scan | None = None
+    ) -> PlanarPose:
         """The base's pose in the memory's frame at `scan`'s stamp, the drift correction
-        first updated from `scan` (the first LiDAR's, de-skewed when odometry allowed).
-        Without a LiDAR there are no walls to match: odometry alone."""
+        first updated from `scan` (the first LiDAR's, de-skewed when odometry allowed; at
+        `base_to_laser` on the base). A scan levelled for matching is levelled beam by beam
+        with the tilt of each beam's time in `swept` (the scan as measured; None: the tilt
+        at the stamp for all). Without a LiDAR there are no walls to match: odometry alone."""
         if not (self.config.memory_scan_matching and self.config.has_lidar):
             return base
         tilt = self.imu.tilt_at(scan.stamp_ns)  # None: no IMU sample then, taken as level
+        beams = None
+        if tilt is not None and swept is not None:
+            angles = scan.angles()
+            directions = np.column_stack([np.cos(angles), np.sin(angles), np.zeros(angles.size)])
+            to_swept = self.base_to_laser(swept.frame_id).inverse() @ base_to_laser
+            local = directions @ to_swept.rotation_matrix.T
+            beams = self._beam_tilts(swept, np.arctan2(local[:, 1], local[:, 0]))
         before, anchored = self.drift.correction, self.drift.anchored
         result = self.drift.update(
             scan,
             base,
             base_to_laser,
             tilt=0.0 if tilt is None else plane_tilt(tilt, base_to_laser),
-            base_tilt=None if tilt is None else tilt.rotation_matrix,
+            base_tilt=beams if beams is not None or tilt is None else tilt.rotation_matrix,
         )
         memory, anchor_ns = self.memory, self.drift.anchored_since_ns
         if memory is not None:
