@@ -51,6 +51,11 @@ class ImuSample:
     stamp_ns: int
     tilt: Transform  # the base's roll and pitch against gravity, yaw 0
 
+    @functools.cached_property
+    def roll_pitch(self) -> tuple[float, float]:
+        roll, pitch, _ = self.tilt.rpy()
+        return roll, pitch
+
 
 def base_tilt(orientation: tuple[float, float, float, float], base_to_imu: Transform) -> Transform:
     """The base's roll and pitch (a rotation, yaw 0) from the IMU frame's orientation
@@ -140,8 +145,8 @@ class ImuHistory:
             return None
         first = bisect.bisect_left(stamps, stamp_ns - AVERAGE_NS)
         last = bisect.bisect_right(stamps, stamp_ns + AVERAGE_NS)
-        near = [self._samples[i].tilt.rpy() for i in range(first, last)] or [
-            self._samples[nearest].tilt.rpy()
+        near = [self._samples[i].roll_pitch for i in range(first, last)] or [
+            self._samples[nearest].roll_pitch
         ]
         roll = sum(angles[0] for angles in near) / len(near)
         pitch = sum(angles[1] for angles in near) / len(near)
@@ -151,6 +156,8 @@ class ImuHistory:
 def tilt_matrices(roll: F64, pitch: F64) -> F64:
     """N rotations (N x 3 x 3) of `Transform.from_rpy(roll, pitch, 0)`: Ry(pitch) Rx(roll)."""
     cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
-    zero = np.zeros_like(roll)
-    rows = [[cp, sp * sr, sp * cr], [zero, cr, -sr], [-sp, cp * sr, cp * cr]]
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    matrices = np.zeros((roll.size, 3, 3))
+    matrices[:, 0, 0], matrices[:, 0, 1], matrices[:, 0, 2] = cp, sp * sr, sp * cr
+    matrices[:, 1, 1], matrices[:, 1, 2] = cr, -sr
+    matrices[:, 2, 0], matrices[:, 2, 1], matrices[:, 2, 2] = -sp, cp * sr, cp * cr
+    return matrices
