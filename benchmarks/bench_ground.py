@@ -26,6 +26,7 @@ from benchmarks.common import Row, median_seconds
 from scanfuse.config import FusionConfig
 from scanfuse.convert.ground import GroundPlane, GroundSettings, GroundTracker
 from scanfuse.convert.obstacle import DropLimits, ObstacleProjector
+from scanfuse.imu import ImuHistory
 from scanfuse.motion import PlanarPose
 from scanfuse.trail import GroundTrail
 from scanfuse.transforms import Transform
@@ -84,12 +85,16 @@ def _whole_stream(
 
 
 TRAIL_READINGS = 1440  # a Hokuyo-class LiDAR's readings a scan
+IMU_PERIOD_NS = 5_000_000  # 200 Hz
+IMU_SPAN_NS = 1_000_000_000  # the IMU's samples: 2 s (`imu.MAX_SAMPLES` of them at 200 Hz)
 TRAIL_STEP = 0.035  # metres a scan: 0.35 m/s at 10 Hz
 
 
-def _trail_scan(pitch: float) -> Callable[[], object]:
+def _trail_scan(pitch: float, *, by_beam: bool = False) -> Callable[[], object]:
     """One scan's work of `GroundTrail` (advance, then look up every reading) on a robot
-    driving straight with its body pitched `pitch` (radians, nose-up), 8 m of path kept."""
+    driving straight with its body pitched `pitch` (radians, nose-up), 8 m of path kept.
+    `by_beam`: each reading with the tilt of its beam's time, from an IMU at 200 Hz across a
+    0.1 s sweep (`ImuHistory.tilts_over`, worked out in the call, as the stream does)."""
     trail = GroundTrail()
     tilt = Transform.from_rpy(0.0, -pitch, 0.0).rotation_matrix
     for index in range(round(trail.settings.length / TRAIL_STEP)):
@@ -98,27 +103,34 @@ def _trail_scan(pitch: float) -> Callable[[], object]:
     # Readings 2 m away in the LiDAR's plane, 0.30 m above the base.
     points = np.stack([2.0 * np.cos(angles), 2.0 * np.sin(angles), np.full_like(angles, 0.3)], 1)
     place = [round(trail.settings.length / TRAIL_STEP)]
+    history = ImuHistory()
+    for stamp in range(0, 2 * IMU_SPAN_NS, IMU_PERIOD_NS):  # rocking 2 degrees either way
+        rock = math.radians(2.0) * math.sin(stamp / IMU_SPAN_NS * 2.0 * math.pi)
+        history.add(stamp, Transform.from_rpy(0.0, -pitch + rock, 0.0))
+    beams = IMU_SPAN_NS + np.arange(TRAIL_READINGS) * (IMU_SPAN_NS // 10 // TRAIL_READINGS)
 
     def call() -> object:
         place[0] += 1
         pose = PlanarPose(place[0] * TRAIL_STEP, 0.0, 0.0)
         trail.advance(pose, tilt, 0)
-        return trail.on_ground(points, pose, tilt)
+        each = history.tilts_over(beams) if by_beam else None
+        return trail.on_ground(points, pose, tilt, each)
 
     return call
 
 
 def run() -> list[Row]:
     rows = []
-    for pitch, note in (
-        (0.0, 'level: no reading near the ground'),
-        (math.radians(7.0), 'pitched 7 deg nose-up: every reading looked up'),
+    for pitch, by_beam, note in (
+        (0.0, False, 'level: no reading near the ground'),
+        (math.radians(7.0), False, 'pitched 7 deg nose-up: every reading looked up'),
+        (math.radians(7.0), True, "pitched 7 deg, each beam with its own time's tilt"),
     ):
         rows.append(
             Row(
                 SECTION,
                 f'ground trail per scan, {TRAIL_READINGS} readings',
-                median_seconds(_trail_scan(pitch)),
+                median_seconds(_trail_scan(pitch, by_beam=by_beam)),
                 f'advance + look-up; body {note}',
             )
         )
