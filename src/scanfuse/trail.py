@@ -11,9 +11,11 @@ path the robot drove, in the odometry frame: the base's height is summed along t
 (each step climbs its length along the base's tilted axes, `GroundTrail.advance`), and
 every cell within `half_width` of the base takes the height of the plane the wheels stand
 on there (the nearest pass's: the ground beside the path is taken to go on as under it,
-as a corridor's or a ramp's does). A LiDAR reading whose point, tilted the same way, lies
-within `tolerance` of a known cell's ground is the floor (`on_ground`): the stream drops
-it (NaN, no reading), and what a camera or the memory sees there stands.
+as a corridor's or a ramp's does). A LiDAR reading whose point, tilted the same way (by
+the tilt when its beam was measured, where the stream knows it: a sprung body rocks
+degrees within one sweep), lies within `tolerance` of a known cell's ground is the floor
+(`on_ground`): the stream drops it (NaN, no reading), and what a camera or the memory sees
+there stands.
 
 Where the trail begins (the node's start, an odometry reset), the plane the wheels stand on
 is taken out to `start_radius`, not just `half_width`: the robot was parked on that floor,
