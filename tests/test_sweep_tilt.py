@@ -189,7 +189,9 @@ def rocking_output(*, timed: bool) -> tuple[Scan, Scan, FusionStream[None]]:
     out = sent = None
     for scan_ns in (STAMP - SWEEP_NS, STAMP):
         pitch = pitch_over(*BRAKE, scan_ns)
-        while imu_ns <= scan_ns + 2 * SWEEP_NS and (imu_ns <= scan_ns or scan_ns == STAMP):
+        # The IMU up to this scan's stamp; for the scan scored, across its sweep and beyond.
+        end = scan_ns + (2 * SWEEP_NS if scan_ns == STAMP else 0)
+        while imu_ns <= end:
             stream.add_imu(
                 imu_ns, Transform.from_rpy(0.0, pitch(imu_ns), 0.0).rotation, 'base_link'
             )
