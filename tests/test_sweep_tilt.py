@@ -13,6 +13,8 @@ beam meets the floor is worked out from the geometry alone.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -21,15 +23,16 @@ from scanfuse.camera import CameraModel
 from scanfuse.config import FusionConfig
 from scanfuse.imu import ImuHistory, tilt_matrices
 from scanfuse.motion import PlanarPose
-from scanfuse.scan import Scan
 from scanfuse.scan_matching import levelled
 from scanfuse.stream import FusionStream, beam_stamps
 from scanfuse.transforms import BODY_TO_OPTICAL, Transform
+from tests.support.ground_scene import NS, READINGS, lidar_scan
 from tests.support.render import depth_image, square_room_ranges, tilted_room_ranges
 from tests.test_trail import HALF_WIDTH, LIDAR_HEIGHT, SLOPE, driven_trail, height_at, path
 
-NS = 1_000_000_000
-READINGS = 720
+if TYPE_CHECKING:
+    from scanfuse.scan import Scan
+
 SWEEP_NS = NS // 10  # a 10 Hz LiDAR
 TIME_INCREMENT = SWEEP_NS / NS / READINGS
 IMU_PERIOD_NS = 5_000_000  # 200 Hz
@@ -37,18 +40,11 @@ STAMP = 10 * NS
 
 
 def sweep_scan(stamp_ns: int, ranges: np.ndarray, *, timed: bool = True) -> Scan:
-    """A 360-degree scan from -pi whose beam i was measured at stamp + i time_increment
-    (`timed`), or that says nothing of when (time_increment 0)."""
-    increment = 2.0 * math.pi / READINGS
-    return Scan(
-        angle_min=-math.pi,
-        angle_max=math.pi - increment,
-        angle_increment=increment,
-        range_min=0.05,
-        range_max=10.0,
+    """`tests/support/ground_scene.py`'s 360-degree scan from -pi with `ranges`; its beam i
+    measured at stamp + i time_increment (`timed`), or saying nothing of when (0)."""
+    return replace(
+        lidar_scan(stamp_ns),
         ranges=ranges.astype(np.float32),
-        frame_id='laser',
-        stamp_ns=stamp_ns,
         time_increment=TIME_INCREMENT if timed else 0.0,
     )
 
@@ -106,13 +102,14 @@ def test_beam_stamps_follow_the_sweep_and_find_the_beam_along_a_bearing():
     stamps = beam_stamps(scan)
     assert stamps is not None
     np.testing.assert_array_equal(stamps, np.rint(beam_times(STAMP)).astype(np.int64))
-    # Beam 0 points at -pi, beam 360 ahead, the last just short of +pi; a bearing of +pi is
+    # Beam 0 points at -pi, beam READINGS / 2 ahead, the last just short of +pi; a bearing of +pi is
     # beam 0's (the turn closes there), half a beam either side of a beam is that beam.
     half = 0.49 * scan.angle_increment
     bearings = np.array([0.0, -math.pi, math.pi, math.pi - 2 * half, 0.0 + half, -half])
     along = beam_stamps(scan, bearings)
     assert along is not None
-    np.testing.assert_array_equal(along, stamps[[360, 0, 0, READINGS - 1, 360, 360]])
+    ahead = READINGS // 2
+    np.testing.assert_array_equal(along, stamps[[ahead, 0, 0, READINGS - 1, ahead, ahead]])
     assert beam_stamps(sweep_scan(STAMP, np.ones(READINGS), timed=False)) is None
 
 
